@@ -1,0 +1,307 @@
+//! Aligned windows: the 2r+1 frames around a centre frame, warped onto it along the renderer's
+//! motion, each with a confidence plane, optionally mixed towards the centre by confidence.
+
+use rayon::prelude::*;
+
+use crate::confidence::{confidence, ConfidenceParams, Guides};
+use crate::frame::Frame;
+use crate::motion::{bilinear, compose, invert, on_screen, round_trip_error};
+use crate::plane::Plane;
+use crate::warp::{mix_with_centre, warp_plane};
+
+/// Options for aligning a window.
+#[derive(Clone, Copy, Debug)]
+pub struct AlignParams {
+    /// Confidence tolerances.
+    pub confidence: ConfidenceParams,
+    /// Blend each warped side frame towards the centre by `1 − confidence` (paper section 3).
+    pub mix_centre: bool,
+    /// Fixed-point iterations when a motion direction must be derived by inversion.
+    pub invert_iterations: usize,
+}
+
+impl Default for AlignParams {
+    fn default() -> Self {
+        Self {
+            confidence: ConfidenceParams::default(),
+            mix_centre: true,
+            invert_iterations: 6,
+        }
+    }
+}
+
+/// One frame of an aligned window, warped onto the centre frame.
+#[derive(Clone, Debug)]
+pub struct AlignedFrame {
+    /// Frame offset from the centre (−2..=2 for a 5-frame window).
+    pub offset: i32,
+    /// Beauty RGB.
+    pub color: Plane,
+    /// Alpha, if the frames have it.
+    pub alpha: Option<Plane>,
+    /// Albedo, if the frames have it.
+    pub albedo: Option<Plane>,
+    /// Normal, if the frames have it.
+    pub normal: Option<Plane>,
+    /// Depth, if the frames have it.
+    pub depth: Option<Plane>,
+    /// AOVs in the order the frames carry them.
+    pub aovs: Vec<Plane>,
+    /// Confidence in [0, 1]: 1 for the centre frame; 0 off-screen, on disocclusion and for
+    /// frames beyond the ends of the sequence.
+    pub confidence: Plane,
+    /// The displacement used for the lookup (pixels, +Y down).
+    pub flow: Plane,
+}
+
+/// The frames of a window, all aligned to the centre one.
+#[derive(Clone, Debug)]
+pub struct AlignedWindow {
+    /// The frames in time order; the centre is at index `frames.len() / 2`.
+    pub frames: Vec<AlignedFrame>,
+}
+
+impl AlignedWindow {
+    /// The centre frame.
+    pub fn centre(&self) -> &AlignedFrame {
+        &self.frames[self.frames.len() / 2]
+    }
+
+    /// Window radius (2 for 5 frames).
+    pub fn radius(&self) -> usize {
+        self.frames.len() / 2
+    }
+}
+
+/// Aligns a window of frames onto its centre. `window[k]` is `None` for frames beyond the
+/// ends of the sequence: they repeat the nearest available frame with zero confidence. The
+/// window length must be odd and its centre present.
+pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedWindow {
+    let t = window.len();
+    assert!(t % 2 == 1, "window length must be odd");
+    let r = t / 2;
+    let centre = window[r].expect("the centre frame of a window must exist");
+    let (w, h) = (centre.width(), centre.height());
+    let guides_c = Guides::new(
+        &centre.color,
+        centre.albedo.as_ref(),
+        centre.normal.as_ref(),
+        centre.depth.as_ref(),
+    );
+
+    let mut slots: Vec<Option<AlignedFrame>> = (0..t).map(|_| None).collect();
+    slots[r] = Some(AlignedFrame {
+        offset: 0,
+        color: centre.color.clone(),
+        alpha: centre.alpha.clone(),
+        albedo: centre.albedo.clone(),
+        normal: centre.normal.clone(),
+        depth: centre.depth.clone(),
+        aovs: centre.aovs.iter().map(|a| a.plane.clone()).collect(),
+        confidence: Plane::filled(w, h, 1, 1.0),
+        flow: Plane::zeros(w, h, 2),
+    });
+
+    // walk outwards in each direction, accumulating flow, validity and motion error
+    for dir in [-1i32, 1] {
+        let mut flow = Plane::zeros(w, h, 2);
+        let mut valid = Plane::filled(w, h, 1, 1.0);
+        let mut err: Option<Plane> = Some(Plane::zeros(w, h, 1));
+        let mut prev_idx = r;
+        for step in 1..=r {
+            let idx = (r as i32 + dir * step as i32) as usize;
+            let (Some(from), Some(to)) = (window[prev_idx], window[idx]) else {
+                break; // beyond the sequence: filled in below
+            };
+            // one hop from frame `from` to frame `to`, defined on `from`
+            let (hop, back) = if dir < 0 {
+                hop_fields(from.motion_prev.as_ref(), to.motion_next.as_ref(), params)
+            } else {
+                hop_fields(from.motion_next.as_ref(), to.motion_prev.as_ref(), params)
+            };
+            let Some(hop) = hop else { break };
+            // positions reached so far, then one more hop
+            let landed = compose(&flow, &hop);
+            let hop_err = back.as_ref().map(|b| round_trip_error(&hop, b));
+            let new_valid = step_validity(&valid, &landed, w, h);
+            err = match (err, hop_err) {
+                (Some(e), Some(he)) => Some(add_sampled(&e, &he, &flow)),
+                _ => None,
+            };
+            flow = landed;
+            valid = new_valid;
+            let guides_w = Guides::new(
+                &to.color,
+                to.albedo.as_ref(),
+                to.normal.as_ref(),
+                to.depth.as_ref(),
+            );
+            let warped_guides = Guides {
+                color: warp_plane(&guides_w.color, &flow),
+                albedo: guides_w.albedo.as_ref().map(|p| warp_plane(p, &flow)),
+                normal: guides_w.normal.as_ref().map(|p| warp_plane(p, &flow)),
+                depth: guides_w
+                    .depth
+                    .as_ref()
+                    .map(|p| warp_nearest_depth(p, &flow)),
+            };
+            let conf = confidence(
+                &guides_c,
+                &warped_guides,
+                &valid,
+                err.as_ref(),
+                step,
+                &params.confidence,
+            );
+            let mut f = AlignedFrame {
+                offset: dir * step as i32,
+                color: warp_plane(&to.color, &flow),
+                alpha: to.alpha.as_ref().map(|p| warp_plane(p, &flow)),
+                albedo: to.albedo.as_ref().map(|p| warp_plane(p, &flow)),
+                normal: to.normal.as_ref().map(|p| warp_plane(p, &flow)),
+                depth: warped_guides.depth,
+                aovs: to
+                    .aovs
+                    .iter()
+                    .map(|a| warp_plane(&a.plane, &flow))
+                    .collect(),
+                confidence: conf,
+                flow: flow.clone(),
+            };
+            if params.mix_centre {
+                mix_frame(&mut f, slots[r].as_ref().expect("centre is set"));
+            }
+            slots[idx] = Some(f);
+            prev_idx = idx;
+        }
+    }
+
+    // frames beyond the sequence ends (or without motion to reach them): repeat the nearest
+    // aligned frame towards the centre, with zero confidence
+    for dir in [-1i32, 1] {
+        for step in 1..=r {
+            let idx = (r as i32 + dir * step as i32) as usize;
+            if slots[idx].is_none() {
+                let near = (r as i32 + dir * (step as i32 - 1)) as usize;
+                let mut f = slots[near].clone().expect("nearer slot is filled first");
+                f.offset = dir * step as i32;
+                f.confidence = Plane::zeros(w, h, 1);
+                if params.mix_centre {
+                    mix_frame(&mut f, slots[r].as_ref().expect("centre is set"));
+                }
+                slots[idx] = Some(f);
+            }
+        }
+    }
+    AlignedWindow {
+        frames: slots
+            .into_iter()
+            .map(|s| s.expect("every slot is filled"))
+            .collect(),
+    }
+}
+
+/// The hop field (native or derived by inversion) and, when both directions are native, the
+/// field back for the consistency check.
+fn hop_fields(
+    native: Option<&Plane>,
+    other_way: Option<&Plane>,
+    params: &AlignParams,
+) -> (Option<Plane>, Option<Plane>) {
+    match (native, other_way) {
+        (Some(n), Some(o)) => (Some(n.clone()), Some(o.clone())),
+        (Some(n), None) => (Some(n.clone()), None),
+        (None, Some(o)) => (Some(invert(o, params.invert_iterations)), None),
+        (None, None) => (None, None),
+    }
+}
+
+fn mix_frame(f: &mut AlignedFrame, c: &AlignedFrame) {
+    mix_with_centre(&mut f.color, &c.color, &f.confidence);
+    for (a, b) in [
+        (&mut f.alpha, &c.alpha),
+        (&mut f.albedo, &c.albedo),
+        (&mut f.normal, &c.normal),
+        (&mut f.depth, &c.depth),
+    ] {
+        if let (Some(a), Some(b)) = (a.as_mut(), b.as_ref()) {
+            mix_with_centre(a, b, &f.confidence);
+        }
+    }
+    for (a, b) in f.aovs.iter_mut().zip(&c.aovs) {
+        mix_with_centre(a, b, &f.confidence);
+    }
+}
+
+/// Validity after one more hop: still valid and the new landing point is on the image.
+fn step_validity(valid: &Plane, landed: &Plane, w: usize, h: usize) -> Plane {
+    let mut out = Plane::zeros(w, h, 1);
+    out.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let ok = valid.get(x, y, 0) > 0.0
+                    && on_screen(
+                        w,
+                        h,
+                        x as f32 + landed.get(x, y, 0),
+                        y as f32 + landed.get(x, y, 1),
+                    );
+                *o = if ok { 1.0 } else { 0.0 };
+            }
+        });
+    out
+}
+
+/// `acc(x) + hop_err(x + flow(x))`: accumulates a per-hop error along the path.
+fn add_sampled(acc: &Plane, hop_err: &Plane, flow: &Plane) -> Plane {
+    let (w, h) = (acc.width(), acc.height());
+    let mut out = Plane::zeros(w, h, 1);
+    out.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let px = x as f32 + flow.get(x, y, 0);
+                let py = y as f32 + flow.get(x, y, 1);
+                *o = acc.get(x, y, 0) + bilinear(hop_err, 0, px, py);
+            }
+        });
+    out
+}
+
+/// Warps depth taking, of the four bilinear neighbours, the one closest to the bilinear value,
+/// so silhouettes do not produce depths halfway between foreground and background.
+fn warp_nearest_depth(src: &Plane, flow: &Plane) -> Plane {
+    let (w, h) = (src.width(), src.height());
+    let mut out = Plane::zeros(w, h, 1);
+    out.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(y, row)| {
+            for (x, o) in row.iter_mut().enumerate() {
+                let px = (x as f32 + flow.get(x, y, 0)).clamp(0.0, (w - 1) as f32);
+                let py = (y as f32 + flow.get(x, y, 1)).clamp(0.0, (h - 1) as f32);
+                let (x0, y0) = (px.floor() as usize, py.floor() as usize);
+                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+                let (fx, fy) = (px - x0 as f32, py - y0 as f32);
+                // the neighbour with the largest bilinear weight
+                let sx = if fx < 0.5 { x0 } else { x1 };
+                let sy = if fy < 0.5 { y0 } else { y1 };
+                *o = src.get(sx, sy, 0);
+            }
+        });
+    out
+}
+
+/// Which sequence positions make up the window of the frame at `index` in a sequence of
+/// `len` frames: `None` beyond either end.
+pub fn window_indices(index: usize, len: usize, radius: usize) -> Vec<Option<usize>> {
+    (0..=2 * radius)
+        .map(|k| {
+            let i = index as i64 + k as i64 - radius as i64;
+            (i >= 0 && i < len as i64).then_some(i as usize)
+        })
+        .collect()
+}

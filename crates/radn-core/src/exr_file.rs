@@ -1,0 +1,451 @@
+//! Whole EXR files kept in memory, so that writing back preserves every layer, channel and
+//! attribute radn did not change.
+
+use std::collections::HashMap;
+use std::io::Read;
+use std::path::{Path, PathBuf};
+
+use exr::prelude::*;
+use half::f16;
+
+use crate::error::{Error, Result};
+
+/// The storage type of one EXR channel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SampleKind {
+    /// 16-bit float.
+    F16,
+    /// 32-bit float.
+    F32,
+    /// 32-bit unsigned integer (object ids and the like).
+    U32,
+}
+
+impl std::fmt::Display for SampleKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(match self {
+            SampleKind::F16 => "half",
+            SampleKind::F32 => "float",
+            SampleKind::U32 => "uint",
+        })
+    }
+}
+
+/// Where one channel lives inside the decoded image.
+#[derive(Clone, Copy, Debug)]
+struct ChannelRef {
+    layer: usize,
+    index: usize,
+}
+
+/// A decoded EXR file: all layers (parts), channels and header attributes.
+///
+/// Channels are addressed by their *full name*: `part.channel` for named parts of a
+/// multi-part file, the plain channel name otherwise (single-part multilayer files such as
+/// Cycles' already carry dotted names like `ViewLayer.Combined.R`).
+#[derive(Clone, Debug)]
+pub struct ExrFile {
+    path: PathBuf,
+    image: FlatImage,
+    index: HashMap<String, ChannelRef>,
+}
+
+/// The first four bytes of every OpenEXR file.
+const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
+
+impl ExrFile {
+    /// Reads and decodes a whole file; every failure names the file.
+    pub fn read(path: impl AsRef<Path>) -> Result<Self> {
+        let path = path.as_ref().to_path_buf();
+        let mut magic = [0u8; 4];
+        let mut f = std::fs::File::open(&path).map_err(|source| Error::Open {
+            path: path.clone(),
+            source,
+        })?;
+        if f.read_exact(&mut magic).is_err() || magic != EXR_MAGIC {
+            return Err(Error::NotExr { path });
+        }
+        drop(f);
+        let image = read()
+            .no_deep_data()
+            .largest_resolution_level()
+            .all_channels()
+            .all_layers()
+            .all_attributes()
+            .from_file(&path)
+            .map_err(|e| Error::Decode {
+                path: path.clone(),
+                detail: describe_exr_error(e),
+            })?;
+        let file = Self::from_image(path, image);
+        file.check_layers()?;
+        Ok(file)
+    }
+
+    /// Builds a new single-part file from named planes of one size.
+    pub fn from_channels(
+        path: impl AsRef<Path>,
+        width: usize,
+        height: usize,
+        channels: Vec<(String, Vec<f32>)>,
+        kind: SampleKind,
+    ) -> Self {
+        let list = channels
+            .into_iter()
+            .map(|(name, data)| {
+                assert_eq!(
+                    data.len(),
+                    width * height,
+                    "channel '{name}' has the wrong length"
+                );
+                AnyChannel::new(Text::from(name.as_str()), samples_of_kind(&data, kind))
+            })
+            .collect();
+        let layer = Layer::new(
+            Vec2(width, height),
+            LayerAttributes::default(),
+            Encoding::SMALL_LOSSLESS,
+            AnyChannels::sort(list),
+        );
+        let single = Image::from_layer(layer);
+        let image: FlatImage = Image {
+            attributes: single.attributes,
+            layer_data: std::iter::once(single.layer_data).collect(),
+        };
+        Self::from_image(path.as_ref().to_path_buf(), image)
+    }
+
+    fn from_image(path: PathBuf, image: FlatImage) -> Self {
+        let mut file = Self {
+            path,
+            image,
+            index: HashMap::new(),
+        };
+        file.reindex();
+        file
+    }
+
+    fn reindex(&mut self) {
+        self.index.clear();
+        for (li, layer) in self.image.layer_data.iter().enumerate() {
+            let prefix = layer.attributes.layer_name.as_ref().map(|t| t.to_string());
+            for (ci, ch) in layer.channel_data.list.iter().enumerate() {
+                let name = match &prefix {
+                    Some(p) => format!("{p}.{}", ch.name),
+                    None => ch.name.to_string(),
+                };
+                self.index.insert(
+                    name,
+                    ChannelRef {
+                        layer: li,
+                        index: ci,
+                    },
+                );
+            }
+        }
+    }
+
+    fn check_layers(&self) -> Result<()> {
+        let first = self
+            .image
+            .layer_data
+            .first()
+            .ok_or_else(|| Error::Unsupported {
+                path: self.path.clone(),
+                detail: "the file has no image layers".into(),
+            })?;
+        for layer in &self.image.layer_data {
+            if layer.size != first.size {
+                return Err(Error::Unsupported {
+                    path: self.path.clone(),
+                    detail: format!(
+                        "its parts differ in size ({}x{} vs {}x{}); radn needs one data window",
+                        layer.size.0, layer.size.1, first.size.0, first.size.1
+                    ),
+                });
+            }
+            for ch in &layer.channel_data.list {
+                if ch.sampling != Vec2(1, 1) {
+                    return Err(Error::Unsupported {
+                        path: self.path.clone(),
+                        detail: format!(
+                            "channel '{}' is subsampled, which radn does not support",
+                            ch.name
+                        ),
+                    });
+                }
+            }
+        }
+        Ok(())
+    }
+
+    /// The file this was read from (or will be written to).
+    pub fn path(&self) -> &Path {
+        &self.path
+    }
+
+    /// Width of the data window in pixels.
+    pub fn width(&self) -> usize {
+        self.image.layer_data[0].size.0
+    }
+
+    /// Height of the data window in pixels.
+    pub fn height(&self) -> usize {
+        self.image.layer_data[0].size.1
+    }
+
+    /// Full names of all channels, sorted.
+    pub fn channel_names(&self) -> Vec<String> {
+        let mut names: Vec<String> = self.index.keys().cloned().collect();
+        names.sort();
+        names
+    }
+
+    /// True when the file has a channel of this full name.
+    pub fn has_channel(&self, name: &str) -> bool {
+        self.index.contains_key(name)
+    }
+
+    /// The storage type of a channel.
+    pub fn channel_kind(&self, name: &str) -> Option<SampleKind> {
+        self.samples(name).map(|s| match s {
+            FlatSamples::F16(_) => SampleKind::F16,
+            FlatSamples::F32(_) => SampleKind::F32,
+            FlatSamples::U32(_) => SampleKind::U32,
+        })
+    }
+
+    fn samples(&self, name: &str) -> Option<&FlatSamples> {
+        let r = self.index.get(name)?;
+        Some(&self.image.layer_data[r.layer].channel_data.list[r.index].sample_data)
+    }
+
+    /// A channel's samples converted to f32, row-major.
+    pub fn channel_f32(&self, name: &str) -> Option<Vec<f32>> {
+        self.samples(name).map(|s| match s {
+            FlatSamples::F16(v) => v.iter().map(|x| x.to_f32()).collect(),
+            FlatSamples::F32(v) => v.clone(),
+            FlatSamples::U32(v) => v.iter().map(|&x| x as f32).collect(),
+        })
+    }
+
+    /// Replaces a channel's samples, keeping its storage type; adds the channel (as f32
+    /// unless `kind` says otherwise) when it does not exist yet.
+    ///
+    /// A new channel goes into the part whose name prefixes it, or else the first part.
+    pub fn set_channel(&mut self, name: &str, data: &[f32], kind_if_new: SampleKind) {
+        assert_eq!(
+            data.len(),
+            self.width() * self.height(),
+            "channel '{name}' has the wrong length"
+        );
+        if let Some(r) = self.index.get(name).copied() {
+            let ch = &mut self.image.layer_data[r.layer].channel_data.list[r.index];
+            let kind = match ch.sample_data {
+                FlatSamples::F16(_) => SampleKind::F16,
+                FlatSamples::F32(_) => SampleKind::F32,
+                FlatSamples::U32(_) => SampleKind::U32,
+            };
+            ch.sample_data = samples_of_kind(data, kind);
+            return;
+        }
+        let (layer_index, local_name) = self
+            .image
+            .layer_data
+            .iter()
+            .enumerate()
+            .find_map(|(i, l)| {
+                let p = l.attributes.layer_name.as_ref()?.to_string();
+                name.strip_prefix(&format!("{p}."))
+                    .map(|rest| (i, rest.to_string()))
+            })
+            .unwrap_or((0, name.to_string()));
+        let layer = &mut self.image.layer_data[layer_index];
+        let mut list = std::mem::take(&mut layer.channel_data.list);
+        list.push(AnyChannel::new(
+            Text::from(local_name.as_str()),
+            samples_of_kind(data, kind_if_new),
+        ));
+        layer.channel_data = AnyChannels::sort(list);
+        self.reindex();
+    }
+
+    /// A short description of each part for `radn inspect`: name, compression, block layout.
+    pub fn parts(&self) -> Vec<PartInfo> {
+        self.image
+            .layer_data
+            .iter()
+            .map(|l| PartInfo {
+                name: l.attributes.layer_name.as_ref().map(|t| t.to_string()),
+                width: l.size.0,
+                height: l.size.1,
+                compression: format!("{:?}", l.encoding.compression),
+                tiles: match l.encoding.blocks {
+                    Blocks::ScanLines => None,
+                    Blocks::Tiles(t) => Some((t.0, t.1)),
+                },
+                channels: l.channel_data.list.len(),
+            })
+            .collect()
+    }
+
+    /// Names of the image-level header attributes other than the standard ones.
+    pub fn custom_attribute_names(&self) -> Vec<String> {
+        let mut v: Vec<String> = self
+            .image
+            .attributes
+            .other
+            .keys()
+            .map(|k| k.to_string())
+            .collect();
+        for l in &self.image.layer_data {
+            v.extend(l.attributes.other.keys().map(|k| k.to_string()));
+        }
+        v.sort();
+        v.dedup();
+        v
+    }
+
+    /// Writes the file to `path` through a temporary file in the same folder renamed into
+    /// place, so a failed or interrupted write never leaves a partial file at `path`.
+    pub fn write_atomic(&self, path: impl AsRef<Path>) -> Result<()> {
+        let path = path.as_ref();
+        let dir = match path.parent() {
+            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+            _ => PathBuf::from("."),
+        };
+        std::fs::create_dir_all(&dir).map_err(|source| Error::Write {
+            path: dir.clone(),
+            source,
+        })?;
+        let tmp = tempfile::Builder::new()
+            .prefix(".radn-")
+            .suffix(".exr.tmp")
+            .tempfile_in(&dir)
+            .map_err(|source| Error::Write {
+                path: dir.clone(),
+                source,
+            })?;
+        {
+            let mut writer = std::io::BufWriter::new(tmp.as_file());
+            self.image
+                .write()
+                .to_buffered(&mut writer)
+                .map_err(|e| Error::Encode {
+                    path: path.to_path_buf(),
+                    detail: describe_exr_error(e),
+                })?;
+            use std::io::Write;
+            writer.flush().map_err(|source| Error::Write {
+                path: path.to_path_buf(),
+                source,
+            })?;
+        }
+        tmp.persist(path).map_err(|e| Error::Write {
+            path: path.to_path_buf(),
+            source: e.error,
+        })?;
+        Ok(())
+    }
+}
+
+/// One part (layer) of an EXR file, as shown by `radn inspect`.
+#[derive(Clone, Debug)]
+pub struct PartInfo {
+    /// The part's name, if it has one.
+    pub name: Option<String>,
+    /// Data window width.
+    pub width: usize,
+    /// Data window height.
+    pub height: usize,
+    /// Compression method.
+    pub compression: String,
+    /// Tile size, or `None` for scanline storage.
+    pub tiles: Option<(usize, usize)>,
+    /// Number of channels in the part.
+    pub channels: usize,
+}
+
+fn samples_of_kind(data: &[f32], kind: SampleKind) -> FlatSamples {
+    match kind {
+        SampleKind::F16 => FlatSamples::F16(data.iter().map(|&x| f16::from_f32(x)).collect()),
+        SampleKind::F32 => FlatSamples::F32(data.to_vec()),
+        SampleKind::U32 => {
+            FlatSamples::U32(data.iter().map(|&x| x.max(0.0).round() as u32).collect())
+        }
+    }
+}
+
+fn describe_exr_error(e: exr::error::Error) -> String {
+    match e {
+        exr::error::Error::Invalid(msg) => format!("the file is corrupt or truncated ({msg})"),
+        exr::error::Error::NotSupported(msg) => format!("unsupported EXR feature ({msg})"),
+        exr::error::Error::Io(io) if io.kind() == std::io::ErrorKind::UnexpectedEof => {
+            "the file is truncated (unexpected end of file)".to_string()
+        }
+        exr::error::Error::Io(io) => format!("i/o error ({io})"),
+        exr::error::Error::Aborted => "aborted".to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn ramp(n: usize, k: f32) -> Vec<f32> {
+        (0..n).map(|i| i as f32 * k).collect()
+    }
+
+    #[test]
+    fn set_channel_adds_and_replaces() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("a.exr");
+        let mut f =
+            ExrFile::from_channels(&p, 4, 3, vec![("R".into(), ramp(12, 1.0))], SampleKind::F16);
+        f.set_channel("R", &ramp(12, 0.5), SampleKind::F32);
+        f.set_channel("denoised.R", &ramp(12, 2.0), SampleKind::F32);
+        assert_eq!(f.channel_kind("R"), Some(SampleKind::F16));
+        assert_eq!(f.channel_kind("denoised.R"), Some(SampleKind::F32));
+        f.write_atomic(&p).unwrap();
+        let g = ExrFile::read(&p).unwrap();
+        assert_eq!(
+            g.channel_names(),
+            vec!["R".to_string(), "denoised.R".to_string()]
+        );
+        assert_eq!(g.channel_f32("R").unwrap()[3], 1.5);
+        assert_eq!(g.channel_f32("denoised.R").unwrap()[11], 22.0);
+        // no temporary file is left behind
+        assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[test]
+    fn not_an_exr_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.exr");
+        std::fs::write(&p, b"hello world, not an image").unwrap();
+        let e = ExrFile::read(&p).unwrap_err().to_string();
+        assert!(e.contains("x.exr") && e.contains("not an OpenEXR"), "{e}");
+    }
+
+    #[test]
+    fn truncated_exr_is_named() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("t.exr");
+        ExrFile::from_channels(
+            &p,
+            64,
+            64,
+            vec![("R".into(), ramp(4096, 0.1))],
+            SampleKind::F32,
+        )
+        .write_atomic(&p)
+        .unwrap();
+        let bytes = std::fs::read(&p).unwrap();
+        std::fs::write(&p, &bytes[..bytes.len() / 2]).unwrap();
+        let e = ExrFile::read(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("t.exr") && (e.contains("truncated") || e.contains("corrupt")),
+            "{e}"
+        );
+    }
+}

@@ -1,0 +1,542 @@
+//! Frames: the named buffers of one rendered image, read from an EXR through a channel mapping.
+
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+use crate::exr_file::ExrFile;
+use crate::hygiene::{count_nonfinite, repair_nonfinite, NonFinitePolicy};
+use crate::mapping::{resolve, ChannelMapping, MotionSpec, MotionUnits, PlaneSpec};
+use crate::plane::Plane;
+
+/// Depth given to background pixels whose depth is +Inf.
+pub const FAR_DEPTH: f32 = 1.0e10;
+
+/// An extra buffer (AOV) carried through denoising with the beauty's kernels.
+#[derive(Clone, Debug)]
+pub struct Aov {
+    /// The name the user gave (`diffuse`, `DiffCol`, ...).
+    pub name: String,
+    /// The full EXR channel names, one per plane channel.
+    pub channels: Vec<String>,
+    /// The samples.
+    pub plane: Plane,
+}
+
+/// One rendered frame in linear f32, in radn's conventions (motion in pixels, +Y down).
+#[derive(Clone, Debug)]
+pub struct Frame {
+    /// The file it was read from.
+    pub path: PathBuf,
+    /// Beauty RGB.
+    pub color: Plane,
+    /// Beauty alpha.
+    pub alpha: Option<Plane>,
+    /// Albedo RGB.
+    pub albedo: Option<Plane>,
+    /// Normal XYZ.
+    pub normal: Option<Plane>,
+    /// Depth (distance or Z; only compared with itself).
+    pub depth: Option<Plane>,
+    /// Displacement in pixels from each pixel to where its surface point was one frame earlier.
+    pub motion_prev: Option<Plane>,
+    /// Displacement in pixels from each pixel to where its surface point will be one frame later.
+    pub motion_next: Option<Plane>,
+    /// Extra buffers requested by the caller.
+    pub aovs: Vec<Aov>,
+    /// The full channel names the beauty was read from (R, G, B), for writing results back.
+    pub color_channels: Vec<String>,
+    /// The full channel name of alpha, if read.
+    pub alpha_channel: Option<String>,
+    /// How many NaN/Inf samples were repaired.
+    pub repaired: usize,
+}
+
+impl Frame {
+    /// Width in pixels.
+    pub fn width(&self) -> usize {
+        self.color.width()
+    }
+
+    /// Height in pixels.
+    pub fn height(&self) -> usize {
+        self.color.height()
+    }
+
+    /// A frame holding only the given planes, for tests and synthetic data.
+    pub fn synthetic(color: Plane) -> Self {
+        Self {
+            path: PathBuf::from("<synthetic>"),
+            color,
+            alpha: None,
+            albedo: None,
+            normal: None,
+            depth: None,
+            motion_prev: None,
+            motion_next: None,
+            aovs: Vec::new(),
+            color_channels: vec!["R".into(), "G".into(), "B".into()],
+            alpha_channel: None,
+            repaired: 0,
+        }
+    }
+}
+
+/// Which buffers a caller cannot work without.
+#[derive(Clone, Copy, Debug)]
+pub struct Requirements {
+    /// Albedo must be present.
+    pub albedo: bool,
+    /// Normal must be present.
+    pub normal: bool,
+    /// Depth must be present.
+    pub depth: bool,
+    /// Motion towards the previous or the next frame must be present.
+    pub motion: bool,
+}
+
+impl Requirements {
+    /// Only the beauty.
+    pub const COLOR_ONLY: Requirements = Requirements {
+        albedo: false,
+        normal: false,
+        depth: false,
+        motion: false,
+    };
+    /// What warping and the denoisers need: albedo, normal and motion (depth used when present).
+    pub const DENOISE: Requirements = Requirements {
+        albedo: true,
+        normal: true,
+        depth: false,
+        motion: true,
+    };
+}
+
+/// Reads frames from EXR files through a channel mapping, checking and repairing as it goes.
+#[derive(Clone, Debug)]
+pub struct FrameReader {
+    /// The channel mapping (preset or user file).
+    pub mapping: ChannelMapping,
+    /// The view layer to use when a file holds several.
+    pub layer: Option<String>,
+    /// Buffers that must be present.
+    pub require: Requirements,
+    /// What to do with NaN/Inf samples.
+    pub nonfinite: NonFinitePolicy,
+    /// Extra buffers to read: layer names (with the view-layer prefix implied) or full channel names.
+    pub aovs: Vec<String>,
+}
+
+impl FrameReader {
+    /// A reader with the given mapping and requirements, repairing NaN/Inf and reading no AOVs.
+    pub fn new(mapping: ChannelMapping, require: Requirements) -> Self {
+        Self {
+            mapping,
+            layer: None,
+            require,
+            nonfinite: NonFinitePolicy::Repair,
+            aovs: Vec::new(),
+        }
+    }
+
+    /// Reads one file into a frame, and hands back the decoded file for writing results into.
+    pub fn read(&self, path: &Path) -> Result<(Frame, ExrFile)> {
+        let file = ExrFile::read(path)?;
+        let frame = self.frame_from(&file)?;
+        Ok((frame, file))
+    }
+
+    /// Extracts a frame from an already decoded file.
+    pub fn frame_from(&self, file: &ExrFile) -> Result<Frame> {
+        let names = file.channel_names();
+        let path = file.path().to_path_buf();
+        let mut repaired = 0usize;
+
+        let (color, color_channels, prefix) = {
+            let r = self
+                .find(
+                    file,
+                    &names,
+                    "color",
+                    &self.mapping.color.layer,
+                    &self.mapping.color.channels,
+                )?
+                .ok_or_else(|| self.missing(file, &names, "color (beauty)", &self.mapping.color))?;
+            (
+                self.load(file, &r.channels, &mut repaired, None)?,
+                r.channels,
+                r.prefix,
+            )
+        };
+        let layer_choice = self.layer.clone().or(Some(prefix.clone()));
+        let optional = |spec: &Option<PlaneSpec>,
+                        what: &str,
+                        needed: bool,
+                        far: Option<f32>,
+                        rep: &mut usize|
+         -> Result<Option<(Plane, Vec<String>)>> {
+            let Some(spec) = spec else {
+                if needed {
+                    return Err(Error::MissingChannel {
+                        path: path.clone(),
+                        what: what.into(),
+                        preset: self.mapping.name.clone(),
+                        looked_for: "(the mapping defines none)".into(),
+                        present: names.join(", "),
+                    });
+                }
+                return Ok(None);
+            };
+            let r = self.find_with(
+                file,
+                &names,
+                what,
+                &spec.layer,
+                &spec.channels,
+                layer_choice.as_deref(),
+            )?;
+            match r {
+                Some(r) => Ok(Some((self.load(file, &r.channels, rep, far)?, r.channels))),
+                None if needed => Err(self.missing(file, &names, what, spec)),
+                None => Ok(None),
+            }
+        };
+        let alpha = optional(&self.mapping.alpha, "alpha", false, None, &mut repaired)?;
+        let albedo = optional(
+            &self.mapping.albedo,
+            "albedo",
+            self.require.albedo,
+            None,
+            &mut repaired,
+        )?
+        .map(|p| p.0);
+        let normal = optional(
+            &self.mapping.normal,
+            "normal",
+            self.require.normal,
+            None,
+            &mut repaired,
+        )?
+        .map(|p| p.0);
+        let depth = optional(
+            &self.mapping.depth,
+            "depth",
+            self.require.depth,
+            Some(FAR_DEPTH),
+            &mut repaired,
+        )?
+        .map(|p| p.0);
+        let motion_prev = self.motion(
+            file,
+            &names,
+            &self.mapping.motion_prev,
+            layer_choice.as_deref(),
+            &mut repaired,
+        )?;
+        let motion_next = self.motion(
+            file,
+            &names,
+            &self.mapping.motion_next,
+            layer_choice.as_deref(),
+            &mut repaired,
+        )?;
+        if self.require.motion && motion_prev.is_none() && motion_next.is_none() {
+            let looked_for = [&self.mapping.motion_prev, &self.mapping.motion_next]
+                .iter()
+                .filter_map(|m| m.as_ref())
+                .map(|m| describe(&m.layer, &m.channels))
+                .collect::<Vec<_>>()
+                .join(" or ");
+            return Err(Error::MissingChannel {
+                path,
+                what: "motion vector".into(),
+                preset: self.mapping.name.clone(),
+                looked_for: if looked_for.is_empty() {
+                    "(the mapping defines none)".into()
+                } else {
+                    looked_for
+                },
+                present: names.join(", "),
+            });
+        }
+        let mut aovs = Vec::new();
+        for name in &self.aovs {
+            let channels = aov_channels(&names, name, &prefix);
+            if channels.is_empty() {
+                return Err(Error::MissingChannel {
+                    path,
+                    what: format!("AOV '{name}'"),
+                    preset: self.mapping.name.clone(),
+                    looked_for: format!("a layer '{name}' or a channel named '{name}'"),
+                    present: names.join(", "),
+                });
+            }
+            let plane = self.load(file, &channels, &mut repaired, None)?;
+            aovs.push(Aov {
+                name: name.clone(),
+                channels,
+                plane,
+            });
+        }
+        let (alpha, alpha_channel) = match alpha {
+            Some((p, c)) => (Some(p), Some(c[0].clone())),
+            None => (None, None),
+        };
+        Ok(Frame {
+            path,
+            color,
+            alpha,
+            albedo,
+            normal,
+            depth,
+            motion_prev,
+            motion_next,
+            aovs,
+            color_channels,
+            alpha_channel,
+            repaired,
+        })
+    }
+
+    fn find(
+        &self,
+        file: &ExrFile,
+        names: &[String],
+        what: &str,
+        layers: &[String],
+        comps: &[String],
+    ) -> Result<Option<crate::mapping::Resolved>> {
+        self.find_with(file, names, what, layers, comps, self.layer.as_deref())
+    }
+
+    fn find_with(
+        &self,
+        file: &ExrFile,
+        names: &[String],
+        what: &str,
+        layers: &[String],
+        comps: &[String],
+        choice: Option<&str>,
+    ) -> Result<Option<crate::mapping::Resolved>> {
+        match resolve(layers, comps, names, choice) {
+            Ok(r) => Ok(r),
+            Err(prefixes) => Err(Error::AmbiguousLayer {
+                path: file.path().to_path_buf(),
+                what: what.into(),
+                layers: prefixes.join(", "),
+            }),
+        }
+    }
+
+    fn missing(&self, file: &ExrFile, names: &[String], what: &str, spec: &PlaneSpec) -> Error {
+        Error::MissingChannel {
+            path: file.path().to_path_buf(),
+            what: what.into(),
+            preset: self.mapping.name.clone(),
+            looked_for: describe(&spec.layer, &spec.channels),
+            present: names.join(", "),
+        }
+    }
+
+    fn load(
+        &self,
+        file: &ExrFile,
+        channels: &[String],
+        repaired: &mut usize,
+        far: Option<f32>,
+    ) -> Result<Plane> {
+        let (w, h) = (file.width(), file.height());
+        let data: Vec<Vec<f32>> = channels
+            .iter()
+            .map(|c| file.channel_f32(c).expect("resolved channels exist"))
+            .collect();
+        let refs: Vec<&[f32]> = data.iter().map(|v| v.as_slice()).collect();
+        let mut plane = Plane::from_channels(w, h, &refs);
+        let counts = count_nonfinite(&plane);
+        if counts.iter().any(|&n| n > 0) {
+            if self.nonfinite == NonFinitePolicy::Error {
+                let (i, n) = counts
+                    .iter()
+                    .enumerate()
+                    .find(|(_, n)| **n > 0)
+                    .expect("some count is non-zero");
+                return Err(Error::NonFinite {
+                    path: file.path().to_path_buf(),
+                    channel: channels[i].clone(),
+                    count: *n,
+                });
+            }
+            let n = repair_nonfinite(&mut plane, far);
+            for (i, c) in counts.iter().enumerate().filter(|(_, c)| **c > 0) {
+                tracing::warn!(file = %file.path().display(), channel = %channels[i], count = c, "repaired NaN/Inf samples");
+            }
+            *repaired += n;
+        }
+        Ok(plane)
+    }
+
+    fn motion(
+        &self,
+        file: &ExrFile,
+        names: &[String],
+        spec: &Option<MotionSpec>,
+        choice: Option<&str>,
+        repaired: &mut usize,
+    ) -> Result<Option<Plane>> {
+        let Some(spec) = spec else { return Ok(None) };
+        let Some(r) = self.find_with(
+            file,
+            names,
+            "motion vector",
+            &spec.layer,
+            &spec.channels,
+            choice,
+        )?
+        else {
+            return Ok(None);
+        };
+        let mut plane = self.load(file, &r.channels, repaired, None)?;
+        let (w, h) = (plane.width() as f32, plane.height() as f32);
+        let unit = match spec.units {
+            MotionUnits::Pixels => [1.0, 1.0],
+            MotionUnits::Uv => [w, h],
+        };
+        for c in 0..2 {
+            let k = spec.scale[c] * unit[c];
+            plane.channel_mut(c).iter_mut().for_each(|v| *v *= k);
+        }
+        Ok(Some(plane))
+    }
+}
+
+fn describe(layers: &[String], comps: &[String]) -> String {
+    layers
+        .iter()
+        .map(|l| {
+            let c = comps.join(",");
+            if l.is_empty() {
+                format!("'{c}'")
+            } else {
+                format!("'{l}.{{{c}}}'")
+            }
+        })
+        .collect::<Vec<_>>()
+        .join(" or ")
+}
+
+/// The channels of an AOV named `name`: every channel of layer `name` (under the view-layer
+/// prefix if there is one), or the single channel of that full name.
+fn aov_channels(names: &[String], name: &str, prefix: &str) -> Vec<String> {
+    if names.iter().any(|n| n == name) {
+        return vec![name.to_string()];
+    }
+    let mut layers = vec![format!("{name}.")];
+    if !prefix.is_empty() {
+        layers.insert(0, format!("{prefix}.{name}."));
+    }
+    for l in layers {
+        let mut found: Vec<String> = names
+            .iter()
+            .filter(|n| n.starts_with(&l) && !n[l.len()..].contains('.'))
+            .cloned()
+            .collect();
+        if !found.is_empty() {
+            sort_components(&mut found);
+            return found;
+        }
+    }
+    Vec::new()
+}
+
+/// Orders channel names R, G, B, A / X, Y, Z, W first, the rest alphabetically.
+fn sort_components(v: &mut [String]) {
+    let rank = |n: &str| {
+        let c = n.rsplit('.').next().unwrap_or(n).to_ascii_uppercase();
+        ["R", "G", "B", "A", "X", "Y", "Z", "W"]
+            .iter()
+            .position(|x| *x == c)
+            .unwrap_or(99)
+    };
+    v.sort_by(|a, b| rank(a).cmp(&rank(b)).then(a.cmp(b)));
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::exr_file::SampleKind;
+
+    fn cycles_file(dir: &Path, with_albedo: bool) -> PathBuf {
+        let (w, h) = (8, 4);
+        let mut ch: Vec<(String, Vec<f32>)> = Vec::new();
+        for (layer, comps) in [
+            ("Combined", vec!["R", "G", "B", "A"]),
+            ("Denoising Normal", vec!["X", "Y", "Z"]),
+            ("Vector", vec!["X", "Y", "Z", "W"]),
+            ("Depth", vec!["Z"]),
+            ("Emit", vec!["R", "G", "B"]),
+        ] {
+            for (i, c) in comps.iter().enumerate() {
+                ch.push((
+                    format!("ViewLayer.{layer}.{c}"),
+                    vec![i as f32 + 1.0; w * h],
+                ));
+            }
+        }
+        if with_albedo {
+            for c in ["R", "G", "B"] {
+                ch.push((format!("ViewLayer.Denoising Albedo.{c}"), vec![0.5; w * h]));
+            }
+        }
+        let p = dir.join(if with_albedo {
+            "full.exr"
+        } else {
+            "noalbedo.exr"
+        });
+        ExrFile::from_channels(&p, w, h, ch, SampleKind::F16)
+            .write_atomic(&p)
+            .unwrap();
+        p
+    }
+
+    #[test]
+    fn cycles_frame_is_converted_to_internal_motion() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = cycles_file(dir.path(), true);
+        let mut r = FrameReader::new(
+            ChannelMapping::builtin("cycles").unwrap(),
+            Requirements::DENOISE,
+        );
+        r.aovs = vec!["Emit".into()];
+        let (f, _) = r.read(&p).unwrap();
+        // Vector = (1, 2, 3, 4): prev = (X, -Y), next = (-Z, W)
+        let mp = f.motion_prev.unwrap();
+        let mn = f.motion_next.unwrap();
+        assert_eq!((mp.get(0, 0, 0), mp.get(0, 0, 1)), (1.0, -2.0));
+        assert_eq!((mn.get(0, 0, 0), mn.get(0, 0, 1)), (-3.0, 4.0));
+        assert_eq!(f.alpha.unwrap().get(3, 3, 0), 4.0);
+        assert_eq!(
+            f.aovs[0].channels,
+            vec!["ViewLayer.Emit.R", "ViewLayer.Emit.G", "ViewLayer.Emit.B"]
+        );
+    }
+
+    #[test]
+    fn missing_albedo_names_file_and_preset() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = cycles_file(dir.path(), false);
+        let r = FrameReader::new(
+            ChannelMapping::builtin("cycles").unwrap(),
+            Requirements::DENOISE,
+        );
+        let e = r.read(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("noalbedo.exr") && e.contains("albedo") && e.contains("cycles"),
+            "{e}"
+        );
+        // without the requirement the same file reads
+        let r = FrameReader::new(
+            ChannelMapping::builtin("cycles").unwrap(),
+            Requirements::COLOR_ONLY,
+        );
+        assert!(r.read(&p).unwrap().0.albedo.is_none());
+    }
+}

@@ -1,0 +1,366 @@
+//! Image sequences: file-name patterns (`####`, `%04d`, `$F4`) and frame ranges (`1001-1100x2`).
+
+use std::path::{Path, PathBuf};
+
+use crate::error::{Error, Result};
+
+/// A file-name pattern with one frame-number field.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SequencePattern {
+    text: String,
+    prefix: String,
+    suffix: String,
+    padding: usize,
+}
+
+impl SequencePattern {
+    /// Parses a pattern: a run of `#` (one digit each), `%d`/`%0Nd`, or `$F`/`$FN` (Houdini).
+    /// A plain path without a frame field is a one-file "sequence" only usable with no range.
+    pub fn parse(text: &str) -> Result<Self> {
+        let err = |detail: &str| Error::Parse {
+            what: "sequence pattern",
+            text: text.into(),
+            detail: detail.into(),
+        };
+        let fields = [find_hashes(text), find_printf(text), find_houdini(text)];
+        let found: Vec<(usize, usize, usize)> = fields.into_iter().flatten().collect();
+        match found.len() {
+            0 => Err(err("no frame-number field: use ####, %04d or $F4")),
+            1 => {
+                let (start, end, padding) = found[0];
+                let (prefix, suffix) = (&text[..start], &text[end..]);
+                if [
+                    find_hashes(suffix),
+                    find_printf(suffix),
+                    find_houdini(suffix),
+                ]
+                .iter()
+                .any(Option::is_some)
+                {
+                    return Err(err("more than one frame-number field"));
+                }
+                Ok(Self {
+                    text: text.into(),
+                    prefix: prefix.into(),
+                    suffix: suffix.into(),
+                    padding,
+                })
+            }
+            _ => Err(err("more than one frame-number field")),
+        }
+    }
+
+    /// The pattern as the user wrote it.
+    pub fn as_str(&self) -> &str {
+        &self.text
+    }
+
+    /// The path of one frame.
+    pub fn path(&self, frame: i64) -> PathBuf {
+        let digits = if frame < 0 {
+            format!("-{:0width$}", -frame, width = self.padding)
+        } else {
+            format!("{:0width$}", frame, width = self.padding)
+        };
+        PathBuf::from(format!("{}{}{}", self.prefix, digits, self.suffix))
+    }
+
+    /// The frame numbers of the files on disk that match, sorted.
+    pub fn discover(&self) -> Result<Vec<i64>> {
+        let full = Path::new(&self.prefix);
+        let (dir, file_prefix) = if self.prefix.ends_with('/') || self.prefix.is_empty() {
+            (
+                if self.prefix.is_empty() {
+                    PathBuf::from(".")
+                } else {
+                    PathBuf::from(&self.prefix)
+                },
+                String::new(),
+            )
+        } else {
+            let dir = full
+                .parent()
+                .map(Path::to_path_buf)
+                .filter(|p| !p.as_os_str().is_empty())
+                .unwrap_or_else(|| PathBuf::from("."));
+            (
+                dir,
+                full.file_name()
+                    .map(|s| s.to_string_lossy().into_owned())
+                    .unwrap_or_default(),
+            )
+        };
+        if self.suffix.contains('/') {
+            return Err(Error::Parse {
+                what: "sequence pattern",
+                text: self.text.clone(),
+                detail: "the frame number must be in the file name, not in a folder name".into(),
+            });
+        }
+        let entries = std::fs::read_dir(&dir).map_err(|source| Error::Open {
+            path: dir.clone(),
+            source,
+        })?;
+        let mut frames = Vec::new();
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            let Some(rest) = name.strip_prefix(&file_prefix) else {
+                continue;
+            };
+            let Some(num) = rest.strip_suffix(&self.suffix) else {
+                continue;
+            };
+            let digits = num.strip_prefix('-').unwrap_or(num);
+            if digits.is_empty()
+                || !digits.bytes().all(|b| b.is_ascii_digit())
+                || digits.len() < self.padding
+            {
+                continue;
+            }
+            if digits.len() > self.padding && digits.starts_with('0') {
+                continue; // over-padded: not this pattern's file
+            }
+            if let Ok(n) = num.parse::<i64>() {
+                frames.push(n);
+            }
+        }
+        frames.sort_unstable();
+        frames.dedup();
+        if frames.is_empty() {
+            return Err(Error::EmptySequence {
+                pattern: self.text.clone(),
+            });
+        }
+        Ok(frames)
+    }
+
+    /// The frames to process: the given range (every file must exist), or all files found.
+    pub fn frames(&self, range: Option<&FrameRange>) -> Result<Vec<i64>> {
+        match range {
+            Some(r) => {
+                let frames = r.frames();
+                for &f in &frames {
+                    let p = self.path(f);
+                    if !p.is_file() {
+                        return Err(Error::MissingFrame { frame: f, path: p });
+                    }
+                }
+                Ok(frames)
+            }
+            None => {
+                let frames = self.discover()?;
+                // a gap inside a discovered sequence is a missing frame, not a shorter shot
+                if let (Some(&a), Some(&b)) = (frames.first(), frames.last()) {
+                    let step = frames
+                        .windows(2)
+                        .map(|w| w[1] - w[0])
+                        .min()
+                        .unwrap_or(1)
+                        .max(1);
+                    let mut f = a;
+                    while f <= b {
+                        if frames.binary_search(&f).is_err() {
+                            return Err(Error::MissingFrame {
+                                frame: f,
+                                path: self.path(f),
+                            });
+                        }
+                        f += step;
+                    }
+                }
+                Ok(frames)
+            }
+        }
+    }
+}
+
+impl std::fmt::Display for SequencePattern {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(&self.text)
+    }
+}
+
+fn find_hashes(s: &str) -> Option<(usize, usize, usize)> {
+    let start = s.find('#')?;
+    let len = s[start..].bytes().take_while(|&b| b == b'#').count();
+    Some((start, start + len, len))
+}
+
+fn find_printf(s: &str) -> Option<(usize, usize, usize)> {
+    let b = s.as_bytes();
+    let mut i = 0;
+    while let Some(off) = s[i..].find('%') {
+        let start = i + off;
+        let mut j = start + 1;
+        let mut width = String::new();
+        while j < b.len() && b[j].is_ascii_digit() {
+            width.push(b[j] as char);
+            j += 1;
+        }
+        if j < b.len() && b[j] == b'd' {
+            let pad = width.trim_start_matches('0').parse().unwrap_or(1).max(1);
+            return Some((start, j + 1, pad));
+        }
+        i = start + 1;
+    }
+    None
+}
+
+fn find_houdini(s: &str) -> Option<(usize, usize, usize)> {
+    let start = s.find("$F")?;
+    let b = s.as_bytes();
+    let mut j = start + 2;
+    let mut width = String::new();
+    while j < b.len() && b[j].is_ascii_digit() {
+        width.push(b[j] as char);
+        j += 1;
+    }
+    Some((start, j, width.parse().unwrap_or(1).max(1)))
+}
+
+/// An inclusive frame range with a step: `1001-1100`, `1001-1100x2`, or a single `1001`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct FrameRange {
+    /// First frame.
+    pub first: i64,
+    /// Last frame (inclusive).
+    pub last: i64,
+    /// Step between frames (≥ 1).
+    pub step: i64,
+}
+
+impl FrameRange {
+    /// Parses `a`, `a-b` or `a-b[xstep]` (also `a:b` and `a-b:step`); negative frames allowed.
+    pub fn parse(text: &str) -> Result<Self> {
+        let err = |d: &str| Error::Parse {
+            what: "frame range",
+            text: text.into(),
+            detail: d.into(),
+        };
+        let t = text.trim();
+        let (range, step) = match t
+            .rfind(['x', 'X'])
+            .or_else(|| t.match_indices(':').nth(1).map(|(i, _)| i))
+        {
+            Some(i) => (
+                &t[..i],
+                t[i + 1..]
+                    .parse::<i64>()
+                    .map_err(|_| err("the step is not a whole number"))?,
+            ),
+            None => (t, 1),
+        };
+        if step < 1 {
+            return Err(err("the step must be at least 1"));
+        }
+        // split at a '-' or ':' that is not a leading sign
+        let sep = range
+            .char_indices()
+            .skip(1)
+            .find(|&(_, c)| c == '-' || c == ':')
+            .map(|(i, _)| i);
+        let (first, last) = match sep {
+            Some(i) => (&range[..i], &range[i + 1..]),
+            None => (range, range),
+        };
+        let first: i64 = first
+            .trim()
+            .parse()
+            .map_err(|_| err("expected FIRST-LAST[xSTEP], e.g. 1001-1100x2"))?;
+        let last: i64 = last
+            .trim()
+            .parse()
+            .map_err(|_| err("expected FIRST-LAST[xSTEP], e.g. 1001-1100x2"))?;
+        if last < first {
+            return Err(err("the last frame comes before the first"));
+        }
+        Ok(Self { first, last, step })
+    }
+
+    /// The frame numbers in the range.
+    pub fn frames(&self) -> Vec<i64> {
+        (self.first..=self.last)
+            .step_by(self.step as usize)
+            .collect()
+    }
+}
+
+impl std::str::FromStr for FrameRange {
+    type Err = Error;
+    fn from_str(s: &str) -> Result<Self> {
+        Self::parse(s)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn all_pattern_styles_make_the_same_path() {
+        for p in [
+            "shot/beauty.####.exr",
+            "shot/beauty.%04d.exr",
+            "shot/beauty.$F4.exr",
+        ] {
+            let s = SequencePattern::parse(p).unwrap();
+            assert_eq!(s.path(1001), PathBuf::from("shot/beauty.1001.exr"), "{p}");
+            assert_eq!(s.path(7), PathBuf::from("shot/beauty.0007.exr"), "{p}");
+        }
+        assert_eq!(
+            SequencePattern::parse("a.%d.exr").unwrap().path(12),
+            PathBuf::from("a.12.exr")
+        );
+        assert_eq!(
+            SequencePattern::parse("a.$F.exr").unwrap().path(3),
+            PathBuf::from("a.3.exr")
+        );
+    }
+
+    #[test]
+    fn bad_patterns_are_refused() {
+        assert!(SequencePattern::parse("beauty.exr").is_err());
+        assert!(SequencePattern::parse("b.####.%04d.exr").is_err());
+    }
+
+    #[test]
+    fn ranges_parse_with_steps_and_signs() {
+        assert_eq!(FrameRange::parse("1001-1100").unwrap().frames().len(), 100);
+        assert_eq!(
+            FrameRange::parse("1001-1010x3").unwrap().frames(),
+            vec![1001, 1004, 1007, 1010]
+        );
+        assert_eq!(
+            FrameRange::parse("-2-2").unwrap().frames(),
+            vec![-2, -1, 0, 1, 2]
+        );
+        assert_eq!(FrameRange::parse("5").unwrap().frames(), vec![5]);
+        assert_eq!(FrameRange::parse("1:9:4").unwrap().frames(), vec![1, 5, 9]);
+        assert!(FrameRange::parse("10-1").is_err());
+        assert!(FrameRange::parse("1-10x0").is_err());
+    }
+
+    #[test]
+    fn discovery_and_missing_frames() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in [1, 2, 4] {
+            std::fs::write(dir.path().join(format!("f.{f:04}.exr")), b"").unwrap();
+        }
+        std::fs::write(dir.path().join("f.00003.exr"), b"").unwrap(); // other padding: ignored
+        std::fs::write(dir.path().join("g.0003.exr"), b"").unwrap();
+        let pat = SequencePattern::parse(&format!("{}/f.####.exr", dir.path().display())).unwrap();
+        assert_eq!(pat.discover().unwrap(), vec![1, 2, 4]);
+        let e = pat.frames(None).unwrap_err().to_string();
+        assert!(e.contains("frame 3") && e.contains("f.0003.exr"), "{e}");
+        let e = pat
+            .frames(Some(&FrameRange::parse("1-4").unwrap()))
+            .unwrap_err()
+            .to_string();
+        assert!(e.contains("f.0003.exr"), "{e}");
+        assert_eq!(
+            pat.frames(Some(&FrameRange::parse("1-2").unwrap()))
+                .unwrap(),
+            vec![1, 2]
+        );
+    }
+}
