@@ -351,6 +351,14 @@ impl FrameReader {
             .collect();
         let refs: Vec<&[f32]> = data.iter().map(|v| v.as_slice()).collect();
         let mut plane = Plane::from_channels(w, h, &refs);
+        if let Some(far) = far {
+            // +Inf depth is how half-float files store the background: not a defect
+            plane
+                .data_mut()
+                .iter_mut()
+                .filter(|v| **v == f32::INFINITY)
+                .for_each(|v| *v = far);
+        }
         let counts = count_nonfinite(&plane);
         if counts.iter().any(|&n| n > 0) {
             if self.nonfinite == NonFinitePolicy::Error {

@@ -1,0 +1,323 @@
+//! Alignment against analytic motion: translation, rotation, and a moving object over a static
+//! background. Warped side frames must match the centre frame within 1e-3 wherever the surface
+//! is visible in both, and confidence must be ~0 exactly where it is not.
+
+use radn_core::align::{align_window, AlignParams, AlignedWindow};
+use radn_core::frame::Frame;
+use radn_core::Plane;
+
+const W: usize = 96;
+const H: usize = 72;
+
+/// A smooth texture (bilinear interpolation error below 1e-3).
+fn texture(u: f32, v: f32) -> [f32; 3] {
+    let a = 0.5 + 0.2 * (0.10 * u + 0.07 * v).sin() + 0.15 * (0.09 * v - 0.05 * u).cos();
+    let b = 0.4 + 0.2 * (0.06 * u - 0.08 * v).cos();
+    let c = 0.3 + 0.1 * (0.05 * (u + v)).sin();
+    [a, b, c]
+}
+
+/// The geometry seen by pixel (x, y) of frame t: world texture coordinates, albedo tint,
+/// depth, and the displacements to the previous and the next frame.
+struct Sample {
+    uv: (f32, f32),
+    tint: f32,
+    depth: f32,
+    prev: (f32, f32),
+    next: (f32, f32),
+}
+
+fn render(t: i32, scene: &dyn Fn(f32, f32, i32) -> Sample) -> Frame {
+    let mut color = Plane::zeros(W, H, 3);
+    let mut albedo = Plane::zeros(W, H, 3);
+    let mut normal = Plane::zeros(W, H, 3);
+    let mut depth = Plane::zeros(W, H, 1);
+    let mut mp = Plane::zeros(W, H, 2);
+    let mut mn = Plane::zeros(W, H, 2);
+    for y in 0..H {
+        for x in 0..W {
+            let s = scene(x as f32, y as f32, t);
+            let c = texture(s.uv.0, s.uv.1);
+            for k in 0..3 {
+                color.set(x, y, k, c[k] * s.tint);
+                albedo.set(x, y, k, s.tint * [0.8, 0.6, 0.4][k]);
+            }
+            normal.set(x, y, 2, 1.0);
+            depth.set(x, y, 0, s.depth);
+            mp.set(x, y, 0, s.prev.0);
+            mp.set(x, y, 1, s.prev.1);
+            mn.set(x, y, 0, s.next.0);
+            mn.set(x, y, 1, s.next.1);
+        }
+    }
+    let mut f = Frame::synthetic(color);
+    f.albedo = Some(albedo);
+    f.normal = Some(normal);
+    f.depth = Some(depth);
+    f.motion_prev = Some(mp);
+    f.motion_next = Some(mn);
+    f
+}
+
+fn align(scene: &dyn Fn(f32, f32, i32) -> Sample, mix: bool) -> AlignedWindow {
+    let frames: Vec<Frame> = (-2..=2).map(|t| render(t, scene)).collect();
+    let window: Vec<Option<&Frame>> = frames.iter().map(Some).collect();
+    let params = AlignParams {
+        mix_centre: mix,
+        ..AlignParams::default()
+    };
+    align_window(&window, &params)
+}
+
+/// Checks every side frame: where `visible(x, y, offset)` the warp matches the centre within
+/// 1e-3 and confidence is high; where `hidden(...)` confidence is ~0. Returns pixel counts.
+fn check(
+    win: &AlignedWindow,
+    visible: &dyn Fn(f32, f32, i32) -> bool,
+    hidden: &dyn Fn(f32, f32, i32) -> bool,
+) -> (usize, usize) {
+    let centre = &win.centre().color;
+    let (mut nv, mut nh) = (0, 0);
+    for f in &win.frames {
+        if f.offset == 0 {
+            continue;
+        }
+        for y in 0..H {
+            for x in 0..W {
+                let (xf, yf) = (x as f32, y as f32);
+                if visible(xf, yf, f.offset) {
+                    nv += 1;
+                    for c in 0..3 {
+                        let d = (f.color.get(x, y, c) - centre.get(x, y, c)).abs();
+                        assert!(
+                            d < 1e-3,
+                            "offset {} pixel ({x},{y}) channel {c}: warp error {d}",
+                            f.offset
+                        );
+                    }
+                    let conf = f.confidence.get(x, y, 0);
+                    assert!(
+                        conf > 0.9,
+                        "offset {} pixel ({x},{y}): confidence {conf} where the surface is visible",
+                        f.offset
+                    );
+                } else if hidden(xf, yf, f.offset) {
+                    nh += 1;
+                    let conf = f.confidence.get(x, y, 0);
+                    assert!(
+                        conf < 0.02,
+                        "offset {} pixel ({x},{y}): confidence {conf} where the surface is hidden",
+                        f.offset
+                    );
+                }
+            }
+        }
+    }
+    (nv, nh)
+}
+
+fn inside(x: f32, y: f32, margin: f32) -> bool {
+    x >= margin && y >= margin && x <= W as f32 - 1.0 - margin && y <= H as f32 - 1.0 - margin
+}
+
+#[test]
+fn translation() {
+    let v = (1.75f32, -0.6f32); // the camera pans: the image moves by -v per frame
+    let scene = move |x: f32, y: f32, t: i32| Sample {
+        uv: (x + v.0 * t as f32, y + v.1 * t as f32),
+        tint: 1.0,
+        depth: 4.0,
+        prev: v,
+        next: (-v.0, -v.1),
+    };
+    let win = align(&scene, false);
+    let src = |x: f32, y: f32, o: i32| (x - v.0 * o as f32, y - v.1 * o as f32);
+    let visible = |x: f32, y: f32, o: i32| {
+        let (sx, sy) = src(x, y, o);
+        inside(sx, sy, 0.0)
+    };
+    let hidden = |x: f32, y: f32, o: i32| {
+        let (sx, sy) = src(x, y, o);
+        !inside(sx, sy, -1.0)
+    };
+    let (nv, nh) = check(&win, &visible, &hidden);
+    assert!(nv > 20000 && nh > 500, "{nv} visible, {nh} off-screen");
+}
+
+#[test]
+fn rotation() {
+    let a = 0.03f32; // radians per frame about the image centre
+    let (cx, cy) = (W as f32 / 2.0, H as f32 / 2.0);
+    let rot = move |x: f32, y: f32, ang: f32| {
+        let (dx, dy) = (x - cx, y - cy);
+        (
+            cx + ang.cos() * dx - ang.sin() * dy,
+            cy + ang.sin() * dx + ang.cos() * dy,
+        )
+    };
+    // pixel p of frame t shows world point R(a t) p; in frame s that point is at R(-a s) R(a t) p
+    let scene = move |x: f32, y: f32, t: i32| {
+        let uv = rot(x, y, a * t as f32);
+        let p = rot(x, y, a);
+        let n = rot(x, y, -a);
+        Sample {
+            uv,
+            tint: 1.0,
+            depth: 4.0,
+            prev: (p.0 - x, p.1 - y),
+            next: (n.0 - x, n.1 - y),
+        }
+    };
+    let win = align(&scene, false);
+    let visible = |x: f32, y: f32, o: i32| {
+        let s = rot(x, y, -a * o as f32);
+        inside(s.0, s.1, 0.0)
+    };
+    let hidden = |x: f32, y: f32, o: i32| {
+        let s = rot(x, y, -a * o as f32);
+        !inside(s.0, s.1, -1.0)
+    };
+    let (nv, nh) = check(&win, &visible, &hidden);
+    assert!(nv > 20000 && nh > 300, "{nv} visible, {nh} off-screen");
+}
+
+const DISC_R: f32 = 14.0;
+const DISC_V: (f32, f32) = (4.0, 1.5);
+
+fn disc_centre(t: i32) -> (f32, f32) {
+    (40.0 + DISC_V.0 * t as f32, 34.0 + DISC_V.1 * t as f32)
+}
+
+fn in_disc(x: f32, y: f32, t: i32) -> f32 {
+    let c = disc_centre(t);
+    ((x - c.0).powi(2) + (y - c.1).powi(2)).sqrt() - DISC_R
+}
+
+#[test]
+fn moving_object_over_static_background() {
+    let scene = |x: f32, y: f32, t: i32| {
+        if in_disc(x, y, t) < 0.0 {
+            let c = disc_centre(t);
+            Sample {
+                uv: (x - c.0 + 500.0, y - c.1 + 300.0),
+                tint: 0.6,
+                depth: 2.0,
+                prev: (-DISC_V.0, -DISC_V.1),
+                next: DISC_V,
+            }
+        } else {
+            // the background does not move, but where the disc covers it in the other frame,
+            // that frame's motion belongs to the disc
+            Sample {
+                uv: (x, y),
+                tint: 1.0,
+                depth: 5.0,
+                prev: (0.0, 0.0),
+                next: (0.0, 0.0),
+            }
+        }
+    };
+    let win = align(&scene, false);
+    // a pixel of the centre frame is visible in frame `o` if the same surface is there; keep 2 px
+    // away from the disc's silhouettes in both frames, where bilinear lookups mix surfaces
+    let visible = |x: f32, y: f32, o: i32| {
+        let here = in_disc(x, y, 0);
+        if here.abs() < 2.0 {
+            return false;
+        }
+        let (sx, sy) = if here < 0.0 {
+            (x + DISC_V.0 * o as f32, y + DISC_V.1 * o as f32)
+        } else {
+            (x, y)
+        };
+        if !inside(sx, sy, 0.0) {
+            return false;
+        }
+        let there = in_disc(sx, sy, o);
+        if here < 0.0 {
+            there < -2.0
+        } else {
+            there > 2.0 && (1..o.abs()).all(|k| in_disc(x, y, o.signum() * k) > 2.0)
+        }
+    };
+    // background pixels that the disc covered in frame `o`: disoccluded, must get ~0
+    let hidden = |x: f32, y: f32, o: i32| in_disc(x, y, 0) > 1.5 && in_disc(x, y, o) < -1.5;
+    let (nv, nh) = check(&win, &visible, &hidden);
+    assert!(nv > 20000 && nh > 200, "{nv} visible, {nh} disoccluded");
+}
+
+#[test]
+fn centre_mixing_replaces_hidden_pixels_with_the_centre() {
+    let scene = |x: f32, y: f32, t: i32| {
+        if in_disc(x, y, t) < 0.0 {
+            let c = disc_centre(t);
+            Sample {
+                uv: (x - c.0, y - c.1),
+                tint: 0.6,
+                depth: 2.0,
+                prev: (-DISC_V.0, -DISC_V.1),
+                next: DISC_V,
+            }
+        } else {
+            Sample {
+                uv: (x, y),
+                tint: 1.0,
+                depth: 5.0,
+                prev: (0.0, 0.0),
+                next: (0.0, 0.0),
+            }
+        }
+    };
+    let win = align(&scene, true);
+    let centre = &win.centre().color;
+    let mut n = 0;
+    for f in win.frames.iter().filter(|f| f.offset != 0) {
+        for y in 0..H {
+            for x in 0..W {
+                if in_disc(x as f32, y as f32, 0) > 1.5
+                    && in_disc(x as f32, y as f32, f.offset) < -1.5
+                {
+                    n += 1;
+                    for c in 0..3 {
+                        assert!((f.color.get(x, y, c) - centre.get(x, y, c)).abs() < 0.02);
+                    }
+                }
+            }
+        }
+    }
+    assert!(n > 200, "{n}");
+}
+
+#[test]
+fn window_is_clamped_at_sequence_ends() {
+    let scene = |x: f32, y: f32, _t: i32| Sample {
+        uv: (x, y),
+        tint: 1.0,
+        depth: 3.0,
+        prev: (0.0, 0.0),
+        next: (0.0, 0.0),
+    };
+    let frames: Vec<Frame> = (0..3).map(|t| render(t, &scene)).collect();
+    // centre is the first frame of the sequence: offsets -2 and -1 do not exist
+    let window = vec![
+        None,
+        None,
+        Some(&frames[0]),
+        Some(&frames[1]),
+        Some(&frames[2]),
+    ];
+    let win = align_window(&window, &AlignParams::default());
+    for f in &win.frames[..2] {
+        assert!(f.confidence.data().iter().all(|&c| c == 0.0));
+        assert_eq!(f.color, win.centre().color);
+    }
+    assert!(win.frames[3].confidence.data().iter().all(|&c| c > 0.99));
+    assert_eq!(
+        radn_core::align::window_indices(0, 3, 2),
+        vec![None, None, Some(0), Some(1), Some(2)]
+    );
+    assert_eq!(
+        radn_core::align::window_indices(4, 5, 2),
+        vec![Some(2), Some(3), Some(4), None, None]
+    );
+}
