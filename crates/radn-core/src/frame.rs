@@ -62,6 +62,20 @@ impl Frame {
         self.color.height()
     }
 
+    /// Errors unless this frame is `width`×`height` (frames of one sequence must match).
+    pub fn ensure_size(&self, width: usize, height: usize) -> Result<()> {
+        if self.width() != width || self.height() != height {
+            return Err(Error::SizeMismatch {
+                path: self.path.clone(),
+                expected_w: width,
+                expected_h: height,
+                found_w: self.width(),
+                found_h: self.height(),
+            });
+        }
+        Ok(())
+    }
+
     /// A frame holding only the given planes, for tests and synthetic data.
     pub fn synthetic(color: Plane) -> Self {
         Self {

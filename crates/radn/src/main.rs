@@ -1,1 +1,63 @@
-fn main() {}
+//! `radn`: temporal Monte Carlo denoising of rendered EXR sequences.
+
+mod cmd;
+mod input;
+mod progress;
+
+use clap::{Parser, Subcommand};
+
+/// radn — a temporal Monte Carlo denoiser for rendered EXR sequences.
+#[derive(Parser)]
+#[command(name = "radn", version, about, long_about = None)]
+struct Cli {
+    /// Worker threads (default: all cores).
+    #[arg(long, global = true)]
+    threads: Option<usize>,
+    /// Log more (-v: debug, -vv: trace); RUST_LOG overrides.
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Show an EXR's parts, channels, types, size and value statistics.
+    Inspect(cmd::inspect::Args),
+    /// Write the aligned (warped, confidence-weighted) window of one frame to an EXR.
+    Warp(cmd::warp::Args),
+    /// Compare a result sequence with a reference: PSNR, SSIM, relMSE, tMAE, tPSNR.
+    Eval(cmd::eval::Args),
+    /// Measure read and warp throughput on a sequence.
+    Bench(cmd::bench::Args),
+}
+
+fn main() -> std::process::ExitCode {
+    let cli = Cli::parse();
+    let level = match cli.verbose {
+        0 => "info",
+        1 => "debug",
+        _ => "trace",
+    };
+    let filter = tracing_subscriber::EnvFilter::try_from_default_env().unwrap_or_else(|_| tracing_subscriber::EnvFilter::new(level));
+    tracing_subscriber::fmt().with_env_filter(filter).with_writer(std::io::stderr).with_target(false).init();
+    if let Some(n) = cli.threads {
+        if let Err(e) = rayon::ThreadPoolBuilder::new().num_threads(n).build_global() {
+            eprintln!("error: cannot set {n} threads: {e}");
+            return std::process::ExitCode::FAILURE;
+        }
+    }
+    let result = match cli.command {
+        Command::Inspect(a) => cmd::inspect::run(a),
+        Command::Warp(a) => cmd::warp::run(a),
+        Command::Eval(a) => cmd::eval::run(a),
+        Command::Bench(a) => cmd::bench::run(a),
+    };
+    match result {
+        Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e:#}");
+            std::process::ExitCode::FAILURE
+        }
+    }
+}

@@ -202,19 +202,19 @@ def _layout(rng, scene, outdoor):
             sky.sun_elevation = elevation
             sky.sun_rotation = rng.uniform(0, 2 * math.pi)
             links.new(sky.outputs["Color"], bg.inputs["Color"])
-            bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0)
+            bg.inputs["Strength"].default_value = rng.uniform(0.08, 0.25)
             sun = bpy.data.objects.new("sun", bpy.data.lights.new("sun", "SUN"))
             scene.collection.objects.link(sun)
-            sun.data.energy = rng.uniform(2.0, 5.0)
+            sun.data.energy = rng.uniform(1.0, 3.0)
             sun.data.angle = rng.uniform(0.005, 0.05)
             sun.rotation_euler = (math.pi / 2 - elevation, 0, sky.sun_rotation)
             desc["sky"] = {"type": "nishita", "sun_elevation": elevation}
         else:
             bg.inputs["Color"].default_value = _rgb(rng, 0.2, 1.0)
-            bg.inputs["Strength"].default_value = rng.uniform(0.5, 2.0)
+            bg.inputs["Strength"].default_value = rng.uniform(0.3, 1.0)
             desc["sky"] = {"type": "color"}
     else:
-        size = rng.uniform(8, 14)
+        size = rng.uniform(7, 10)
         bpy.ops.mesh.primitive_cube_add(size=size, location=(0, 0, size / 2 - 0.01))
         room = bpy.context.active_object
         room.data.materials.append(make_material(rng, "diffuse", rng.choice(TEXTURES)))
@@ -227,8 +227,8 @@ def _layout(rng, scene, outdoor):
         area = bpy.data.objects.new("area", bpy.data.lights.new("area", "AREA"))
         scene.collection.objects.link(area)
         area.data.size = rng.uniform(1.0, 3.0)
-        area.data.energy = rng.uniform(300, 1200)
-        area.location = (rng.uniform(-2, 2), rng.uniform(-2, 2), size - 0.5)
+        area.data.energy = rng.uniform(400, 1500)
+        area.location = (rng.uniform(-2, 2), rng.uniform(-2, 2), min(size - 0.5, rng.uniform(3.5, 5.0)))
         desc["room_size"] = size
     return desc
 
@@ -279,7 +279,8 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
     scene.camera = cam
     cam.data.lens = rng.uniform(24, 60)
     cam.data.dof.use_dof = False
-    dist = rng.uniform(6, 10)
+    # indoors the camera must stay inside the room
+    dist = rng.uniform(0.3, 0.42) * desc["room_size"] if not outdoor else rng.uniform(6, 10)
     az = rng.uniform(0, 2 * math.pi)
     height = rng.uniform(1.0, 3.5)
     move = rng.choice(CAMERA_MOVES)

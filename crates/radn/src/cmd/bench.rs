@@ -1,0 +1,54 @@
+//! `radn bench`: throughput of reading and aligning 5-frame windows on this machine.
+
+use std::time::Instant;
+
+use anyhow::{anyhow, Result};
+use radn_core::align::{align_window, AlignParams};
+use radn_core::frame::{Frame, Requirements};
+
+use crate::input::{sequence_files, ChannelArgs};
+
+/// Arguments of `radn bench`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Input sequence (pattern or folder) with at least 5 frames.
+    #[arg(short, long)]
+    pub input: String,
+    /// Repetitions (the median is reported).
+    #[arg(long, default_value_t = 5)]
+    pub repeat: usize,
+    #[command(flatten)]
+    pub channels: ChannelArgs,
+}
+
+/// Times decoding and alignment; prints megapixels per second.
+pub fn run(a: Args) -> Result<()> {
+    let files = sequence_files(&a.input, None)?;
+    if files.len() < 5 {
+        return Err(anyhow!("'{}' has {} frames; the benchmark needs 5", a.input, files.len()));
+    }
+    let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
+    let mut read_times = Vec::new();
+    let mut align_times = Vec::new();
+    let mut frames: Vec<Frame> = Vec::new();
+    for _ in 0..a.repeat.max(1) {
+        let t = Instant::now();
+        frames = files[..5].iter().map(|(_, p)| reader.read(p).map(|r| r.0)).collect::<Result<_, _>>()?;
+        read_times.push(t.elapsed().as_secs_f64());
+        let window: Vec<Option<&Frame>> = frames.iter().map(Some).collect();
+        let t = Instant::now();
+        let w = align_window(&window, &AlignParams::default());
+        align_times.push(t.elapsed().as_secs_f64());
+        std::hint::black_box(w);
+    }
+    let mp = (frames[0].width() * frames[0].height()) as f64 / 1e6;
+    let med = |v: &mut Vec<f64>| {
+        v.sort_by(f64::total_cmp);
+        v[v.len() / 2]
+    };
+    let (r, al) = (med(&mut read_times), med(&mut align_times));
+    println!("frame size {}x{} ({mp:.3} MP), {} threads, median of {}", frames[0].width(), frames[0].height(), rayon::current_num_threads(), a.repeat);
+    println!("read 5 frames:    {:8.1} ms   {:7.2} MP/s (frames decoded)", r * 1e3, 5.0 * mp / r);
+    println!("align window:     {:8.1} ms   {:7.2} MP/s (centre pixels of 5-frame windows)", al * 1e3, mp / al);
+    Ok(())
+}

@@ -1,0 +1,114 @@
+//! Options shared by every command that reads frames: preset, mapping file, view layer,
+//! NaN/Inf policy.
+
+use std::path::PathBuf;
+
+use anyhow::{anyhow, Context, Result};
+use radn_core::exr_file::ExrFile;
+use radn_core::frame::{FrameReader, Requirements};
+use radn_core::hygiene::NonFinitePolicy;
+use radn_core::mapping::ChannelMapping;
+
+/// How to find the buffers radn needs in the input files.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ChannelArgs {
+    /// Renderer preset: cycles, arnold, renderman, karma, generic, or auto (detect).
+    #[arg(long, default_value = "auto")]
+    pub preset: String,
+    /// A channel mapping file (TOML, same format as crates/radn-core/presets/*.toml); overrides --preset.
+    #[arg(long)]
+    pub mapping: Option<PathBuf>,
+    /// The view layer to use when a file holds several (e.g. "ViewLayer").
+    #[arg(long)]
+    pub layer: Option<String>,
+    /// NaN/Inf samples: repair them (and report the count) or stop with an error.
+    #[arg(long, value_enum, default_value = "repair")]
+    pub nonfinite: NonFinite,
+}
+
+/// CLI form of [`NonFinitePolicy`].
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum NonFinite {
+    /// Replace by the mean of finite neighbours and count.
+    Repair,
+    /// Refuse the file.
+    Error,
+}
+
+impl ChannelArgs {
+    /// A frame reader for these options; `probe` is a file used when the preset is `auto`.
+    pub fn reader(&self, probe: &std::path::Path, require: Requirements) -> Result<FrameReader> {
+        let mapping = if let Some(m) = &self.mapping {
+            ChannelMapping::from_file(m)?
+        } else if self.preset == "auto" {
+            let file = ExrFile::read(probe)?;
+            let m = ChannelMapping::detect(&file.channel_names()).ok_or_else(|| {
+                anyhow!(
+                    "'{}': no preset fits its channels ({}); pass --preset or --mapping",
+                    probe.display(),
+                    file.channel_names().join(", ")
+                )
+            })?;
+            tracing::info!(preset = %m.name, "detected channel preset");
+            m
+        } else {
+            ChannelMapping::builtin(&self.preset).ok_or_else(|| {
+                anyhow!("unknown preset '{}'; known: auto, {}", self.preset, ChannelMapping::builtin_names().join(", "))
+            })?
+        };
+        let mut r = FrameReader::new(mapping, require);
+        r.layer = self.layer.clone();
+        r.nonfinite = match self.nonfinite {
+            NonFinite::Repair => NonFinitePolicy::Repair,
+            NonFinite::Error => NonFinitePolicy::Error,
+        };
+        Ok(r)
+    }
+}
+
+/// A sequence given as a pattern (`####`, `%04d`, `$F4`) or a folder of EXRs, with an optional range.
+pub fn sequence_files(spec: &str, frames: Option<&str>) -> Result<Vec<(i64, PathBuf)>> {
+    let path = std::path::Path::new(spec);
+    if path.is_dir() {
+        let mut files: Vec<(i64, PathBuf)> = std::fs::read_dir(path)
+            .with_context(|| format!("cannot list '{}'", path.display()))?
+            .flatten()
+            .map(|e| e.path())
+            .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")))
+            .filter_map(|p| frame_number(&p).map(|n| (n, p)))
+            .collect();
+        files.sort();
+        if let Some(r) = frames {
+            let range = radn_core::sequence::FrameRange::parse(r)?;
+            let wanted = range.frames();
+            for f in &wanted {
+                if !files.iter().any(|(n, _)| n == f) {
+                    return Err(anyhow!("frame {f} is missing from '{}'", path.display()));
+                }
+            }
+            files.retain(|(n, _)| wanted.contains(n));
+        }
+        if files.is_empty() {
+            return Err(anyhow!("'{}' holds no numbered EXR files", path.display()));
+        }
+        return Ok(files);
+    }
+    let pattern = radn_core::sequence::SequencePattern::parse(spec)?;
+    let range = frames.map(radn_core::sequence::FrameRange::parse).transpose()?;
+    Ok(pattern.frames(range.as_ref())?.into_iter().map(|f| (f, pattern.path(f))).collect())
+}
+
+/// The frame number of a file: the last run of digits in its name.
+pub fn frame_number(p: &std::path::Path) -> Option<i64> {
+    let stem = p.file_stem()?.to_string_lossy();
+    let digits: String = stem
+        .chars()
+        .rev()
+        .skip_while(|c| !c.is_ascii_digit())
+        .take_while(|c| c.is_ascii_digit())
+        .collect::<Vec<_>>()
+        .into_iter()
+        .rev()
+        .collect();
+    digits.parse().ok()
+}
