@@ -53,7 +53,11 @@ impl ChannelArgs {
             m
         } else {
             ChannelMapping::builtin(&self.preset).ok_or_else(|| {
-                anyhow!("unknown preset '{}'; known: auto, {}", self.preset, ChannelMapping::builtin_names().join(", "))
+                anyhow!(
+                    "unknown preset '{}'; known: auto, {}",
+                    self.preset,
+                    ChannelMapping::builtin_names().join(", ")
+                )
             })?
         };
         let mut r = FrameReader::new(mapping, require);
@@ -94,8 +98,14 @@ pub fn sequence_files(spec: &str, frames: Option<&str>) -> Result<Vec<(i64, Path
         return Ok(files);
     }
     let pattern = radn_core::sequence::SequencePattern::parse(spec)?;
-    let range = frames.map(radn_core::sequence::FrameRange::parse).transpose()?;
-    Ok(pattern.frames(range.as_ref())?.into_iter().map(|f| (f, pattern.path(f))).collect())
+    let range = frames
+        .map(radn_core::sequence::FrameRange::parse)
+        .transpose()?;
+    Ok(pattern
+        .frames(range.as_ref())?
+        .into_iter()
+        .map(|f| (f, pattern.path(f)))
+        .collect())
 }
 
 /// The frame number of a file: the last run of digits in its name.

@@ -70,11 +70,18 @@ def main(argv=None):
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--out", required=True, help="the scene's folder")
     s.add_argument("--calibration", action="store_true", help="the known-motion calibration scene")
+    t = sub.add_parser("trim", help="copy a scene keeping only the passes radn reads (for the shipped sample)")
+    t.add_argument("src")
+    t.add_argument("dst")
     d = sub.add_parser("dataset", parents=[common], help="render a split of S scenes")
     d.add_argument("--split", choices=sorted(SPLIT_BASE), required=True)
     d.add_argument("--scenes", type=int, required=True)
     d.add_argument("--out", required=True, help="the split's folder; scenes go in scene_<seed>/")
     a = p.parse_args(argv)
+    if a.cmd == "trim":
+        from .trim import trim_scene
+        print(f"wrote {trim_scene(a.src, a.dst)}")
+        return 0
     frames = parse_range(a.frames)
     res = parse_res(a.res)
     ref_frames = parse_range(a.reference_frames) if a.reference_frames else None

@@ -12,18 +12,19 @@ REFERENCE_KEEP = ("Combined",)
 
 
 def trim_file(src, dst, keep):
-    """Writes `dst` with the channels of `src` whose pass is in `keep`, header attributes kept."""
+    """Writes `dst` with the channels of `src` whose pass is in `keep`, as half floats (ZIP),
+    header attributes kept. Half precision turns the background depth (1e10) into +Inf,
+    which radn reads as "infinitely far"."""
     with OpenEXR.File(src, separate_channels=True) as f:
         header = dict(f.header())
-        channels = {name: ch for name, ch in f.channels().items()
-                    if any(f".{p}." in f".{name}" or name.split(".")[-2:-1] == [p] for p in keep)
-                    and name.split(".")[1] in keep}
-    for k in ("channels", "dataWindow", "displayWindow"):
-        header.pop(k, None) if k == "channels" else None
-    header["compression"] = OpenEXR.PIZ_COMPRESSION
+        # Cycles names channels "<ViewLayer>.<Pass>.<Channel>"
+        channels = {name: ch for name, ch in f.channels().items() if name.split(".")[-2] in keep}
+    header.pop("channels", None)
+    header["compression"] = OpenEXR.ZIP_COMPRESSION
     os.makedirs(os.path.dirname(dst), exist_ok=True)
     tmp = dst + ".tmp"
-    with OpenEXR.File(header, {n: OpenEXR.Channel(np.ascontiguousarray(c.pixels)) for n, c in channels.items()}) as out:
+    with OpenEXR.File(header, {n: OpenEXR.Channel(np.ascontiguousarray(c.pixels.astype(np.float16)))
+                                  for n, c in channels.items()}) as out:
         out.write(tmp)
     os.replace(tmp, dst)
     return sorted(channels)
@@ -42,7 +43,7 @@ def trim_scene(src, dst):
                 kept[level] = trim_file(os.path.join(d, name), os.path.join(dst, level, name), keep)
     with open(os.path.join(src, "manifest.json")) as f:
         manifest = json.load(f)
-    manifest["trimmed"] = {"kept_channels": kept, "compression": "PIZ",
+    manifest["trimmed"] = {"kept_channels": kept, "storage": "half float, ZIP",
                            "note": "made by `python -m radn_datagen trim`; other passes dropped to keep the sample small"}
     with open(os.path.join(dst, "manifest.json"), "w") as f:
         json.dump(manifest, f, indent=2, sort_keys=True)

@@ -25,7 +25,11 @@ pub struct Args {
 pub fn run(a: Args) -> Result<()> {
     let files = sequence_files(&a.input, None)?;
     if files.len() < 5 {
-        return Err(anyhow!("'{}' has {} frames; the benchmark needs 5", a.input, files.len()));
+        return Err(anyhow!(
+            "'{}' has {} frames; the benchmark needs 5",
+            a.input,
+            files.len()
+        ));
     }
     let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
     let mut read_times = Vec::new();
@@ -33,7 +37,10 @@ pub fn run(a: Args) -> Result<()> {
     let mut frames: Vec<Frame> = Vec::new();
     for _ in 0..a.repeat.max(1) {
         let t = Instant::now();
-        frames = files[..5].iter().map(|(_, p)| reader.read(p).map(|r| r.0)).collect::<Result<_, _>>()?;
+        frames = files[..5]
+            .iter()
+            .map(|(_, p)| reader.read(p).map(|r| r.0))
+            .collect::<Result<_, _>>()?;
         read_times.push(t.elapsed().as_secs_f64());
         let window: Vec<Option<&Frame>> = frames.iter().map(Some).collect();
         let t = Instant::now();
@@ -47,8 +54,22 @@ pub fn run(a: Args) -> Result<()> {
         v[v.len() / 2]
     };
     let (r, al) = (med(&mut read_times), med(&mut align_times));
-    println!("frame size {}x{} ({mp:.3} MP), {} threads, median of {}", frames[0].width(), frames[0].height(), rayon::current_num_threads(), a.repeat);
-    println!("read 5 frames:    {:8.1} ms   {:7.2} MP/s (frames decoded)", r * 1e3, 5.0 * mp / r);
-    println!("align window:     {:8.1} ms   {:7.2} MP/s (centre pixels of 5-frame windows)", al * 1e3, mp / al);
+    println!(
+        "frame size {}x{} ({mp:.3} MP), {} threads, median of {}",
+        frames[0].width(),
+        frames[0].height(),
+        rayon::current_num_threads(),
+        a.repeat
+    );
+    println!(
+        "read 5 frames:    {:8.1} ms   {:7.2} MP/s (frames decoded)",
+        r * 1e3,
+        5.0 * mp / r
+    );
+    println!(
+        "align window:     {:8.1} ms   {:7.2} MP/s (centre pixels of 5-frame windows)",
+        al * 1e3,
+        mp / al
+    );
     Ok(())
 }

@@ -59,13 +59,26 @@ pub fn run(a: Args) -> Result<()> {
     let reference = sequence_files(&a.reference, None)?;
     let pairs: Vec<(i64, PathBuf, PathBuf)> = result
         .iter()
-        .filter_map(|(f, p)| reference.iter().find(|(g, _)| g == f).map(|(_, q)| (*f, p.clone(), q.clone())))
+        .filter_map(|(f, p)| {
+            reference
+                .iter()
+                .find(|(g, _)| g == f)
+                .map(|(_, q)| (*f, p.clone(), q.clone()))
+        })
         .collect();
     if pairs.is_empty() {
-        return Err(anyhow!("no frame number is in both '{}' and '{}'", a.result, a.reference));
+        return Err(anyhow!(
+            "no frame number is in both '{}' and '{}'",
+            a.result,
+            a.reference
+        ));
     }
     let rreader = a.channels.reader(&pairs[0].1, Requirements::COLOR_ONLY)?;
-    let ref_args = ChannelArgs { preset: a.reference_preset.clone(), mapping: None, ..a.channels.clone() };
+    let ref_args = ChannelArgs {
+        preset: a.reference_preset.clone(),
+        mapping: None,
+        ..a.channels.clone()
+    };
     let qreader = ref_args.reader(&pairs[0].2, Requirements::COLOR_ONLY)?;
     let pb = crate::progress::frames(pairs.len() as u64, "evaluating");
     let planes: Vec<(i64, Plane, Plane)> = pairs
@@ -79,7 +92,11 @@ pub fn run(a: Args) -> Result<()> {
         })
         .collect::<Result<_>>()?;
     pb.finish_and_clear();
-    let step = planes.windows(2).map(|w| w[1].0 - w[0].0).min().unwrap_or(1);
+    let step = planes
+        .windows(2)
+        .map(|w| w[1].0 - w[0].0)
+        .min()
+        .unwrap_or(1);
     let rows: Vec<FrameMetrics> = planes
         .iter()
         .enumerate()
@@ -102,10 +119,18 @@ pub fn run(a: Args) -> Result<()> {
         })
         .collect::<Result<_>>()?;
     let mean = mean_row(&rows);
-    println!("{:>8} {:>9} {:>8} {:>10} {:>9} {:>8}", "frame", "PSNR", "SSIM", "relMSE", "tMAE", "tPSNR");
+    println!(
+        "{:>8} {:>9} {:>8} {:>10} {:>9} {:>8}",
+        "frame", "PSNR", "SSIM", "relMSE", "tMAE", "tPSNR"
+    );
     for r in rows.iter().chain(std::iter::once(&mean)) {
-        let label = if r.frame == i64::MIN { "mean".to_string() } else { r.frame.to_string() };
-        let opt = |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
+        let label = if r.frame == i64::MIN {
+            "mean".to_string()
+        } else {
+            r.frame.to_string()
+        };
+        let opt =
+            |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
         println!(
             "{:>8} {:>9.3} {:>8.4} {:>10.5} {:>9} {:>8}",
             label,
@@ -151,14 +176,22 @@ fn mean_row(rows: &[FrameMetrics]) -> FrameMetrics {
 /// Writes a small report file through a temporary file renamed into place.
 pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
     use std::io::Write;
-    let dir = path.parent().filter(|d| !d.as_os_str().is_empty()).unwrap_or(std::path::Path::new("."));
+    let dir = path
+        .parent()
+        .filter(|d| !d.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| anyhow!("cannot create '{}': {e}", dir.display()))?;
     let mut tmp = tempfile_in(dir)?;
-    tmp.write_all(bytes).map_err(|e| anyhow!("cannot write '{}': {e}", path.display()))?;
-    tmp.persist(path).map_err(|e| anyhow!("cannot write '{}': {}", path.display(), e.error))?;
+    tmp.write_all(bytes)
+        .map_err(|e| anyhow!("cannot write '{}': {e}", path.display()))?;
+    tmp.persist(path)
+        .map_err(|e| anyhow!("cannot write '{}': {}", path.display(), e.error))?;
     Ok(())
 }
 
 fn tempfile_in(dir: &std::path::Path) -> Result<tempfile::NamedTempFile> {
-    tempfile::Builder::new().prefix(".radn-").tempfile_in(dir).map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))
+    tempfile::Builder::new()
+        .prefix(".radn-")
+        .tempfile_in(dir)
+        .map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))
 }

@@ -35,7 +35,8 @@ pub fn run(a: Args) -> Result<()> {
         .iter()
         .map(|n| {
             let v = file.channel_f32(n).expect("listed channel exists");
-            let (mut min, mut max, mut sum, mut nan, mut inf, mut finite) = (f32::INFINITY, f32::NEG_INFINITY, 0f64, 0, 0, 0usize);
+            let (mut min, mut max, mut sum, mut nan, mut inf, mut finite) =
+                (f32::INFINITY, f32::NEG_INFINITY, 0f64, 0, 0, 0usize);
             for &x in &v {
                 if x.is_nan() {
                     nan += 1;
@@ -50,16 +51,25 @@ pub fn run(a: Args) -> Result<()> {
             }
             ChannelStats {
                 name: n.clone(),
-                kind: file.channel_kind(n).expect("listed channel exists").to_string(),
+                kind: file
+                    .channel_kind(n)
+                    .expect("listed channel exists")
+                    .to_string(),
                 min,
                 max,
-                mean: if finite > 0 { sum / finite as f64 } else { f64::NAN },
+                mean: if finite > 0 {
+                    sum / finite as f64
+                } else {
+                    f64::NAN
+                },
                 nan,
                 inf,
             }
         })
         .collect();
-    let preset = ChannelMapping::detect(&names).map(|m| m.name).unwrap_or_else(|| "none".into());
+    let preset = ChannelMapping::detect(&names)
+        .map(|m| m.name)
+        .unwrap_or_else(|| "none".into());
     if a.json {
         let parts: Vec<serde_json::Value> = file
             .parts()
@@ -77,7 +87,12 @@ pub fn run(a: Args) -> Result<()> {
         return Ok(());
     }
     println!("{}", a.file.display());
-    println!("  size {}x{}, {} channels, preset detected: {preset}", file.width(), file.height(), names.len());
+    println!(
+        "  size {}x{}, {} channels, preset detected: {preset}",
+        file.width(),
+        file.height(),
+        names.len()
+    );
     for p in file.parts() {
         let blocks = match p.tiles {
             Some((w, h)) => format!("tiles {w}x{h}"),
@@ -98,7 +113,10 @@ pub fn run(a: Args) -> Result<()> {
         println!("  attributes: {}", attrs.join(", "));
     }
     let wname = stats.iter().map(|s| s.name.len()).max().unwrap_or(7).max(7);
-    println!("  {:wname$}  {:5}  {:>12} {:>12} {:>12} {:>7} {:>7}", "channel", "type", "min", "max", "mean", "NaN", "Inf");
+    println!(
+        "  {:wname$}  {:5}  {:>12} {:>12} {:>12} {:>7} {:>7}",
+        "channel", "type", "min", "max", "mean", "NaN", "Inf"
+    );
     for s in &stats {
         println!(
             "  {:wname$}  {:5}  {:>12.5} {:>12.5} {:>12.5} {:>7} {:>7}",

@@ -69,14 +69,21 @@ pub fn run(a: Args) -> Result<()> {
         tracing::info!("window clamped at the sequence end: missing frames get zero confidence");
     }
     let window: Vec<Option<&Frame>> = frames.iter().map(Option::as_ref).collect();
-    let params = AlignParams { mix_centre: !a.no_mix, ..AlignParams::default() };
+    let params = AlignParams {
+        mix_centre: !a.no_mix,
+        ..AlignParams::default()
+    };
     let win = align_window(&window, &params);
     let mut channels: Vec<(String, Vec<f32>)> = Vec::new();
     for f in &win.frames {
         let l = format!("w{:+}", f.offset);
         let mut push = |name: &str, p: &radn_core::Plane, comps: &[&str]| {
             for (c, comp) in comps.iter().enumerate() {
-                let full = if name.is_empty() { format!("{l}.{comp}") } else { format!("{l}.{name}.{comp}") };
+                let full = if name.is_empty() {
+                    format!("{l}.{comp}")
+                } else {
+                    format!("{l}.{name}.{comp}")
+                };
                 channels.push((full, p.channel(c).to_vec()));
             }
         };
