@@ -422,8 +422,8 @@ impl FrameReader {
             MotionUnits::Pixels => [1.0, 1.0],
             MotionUnits::Uv => [w, h],
         };
-        for c in 0..2 {
-            let k = spec.scale[c] * unit[c];
+        for (c, (scale, unit)) in spec.scale.iter().zip(unit).enumerate() {
+            let k = scale * unit;
             plane.channel_mut(c).iter_mut().for_each(|v| *v *= k);
         }
         Ok(Some(plane))

@@ -50,6 +50,65 @@ impl SequencePattern {
         }
     }
 
+    /// Infers the pattern of a folder of numbered EXR files (`frame_0001.exr` → `frame_####.exr`).
+    /// A folder holding several differently named sequences is an error that lists them.
+    pub fn from_folder(dir: &Path) -> Result<Self> {
+        let entries = std::fs::read_dir(dir).map_err(|source| Error::Open {
+            path: dir.to_path_buf(),
+            source,
+        })?;
+        let mut patterns: Vec<String> = Vec::new();
+        for e in entries.flatten() {
+            let name = e.file_name().to_string_lossy().into_owned();
+            if !name.to_ascii_lowercase().ends_with(".exr") || name.starts_with('.') {
+                continue;
+            }
+            // the last run of digits is the frame number
+            let Some(end) = name.rfind(|c: char| c.is_ascii_digit()) else {
+                continue;
+            };
+            let start = name[..=end]
+                .rfind(|c: char| !c.is_ascii_digit())
+                .map_or(0, |i| i + 1);
+            let p = format!(
+                "{}{}{}",
+                &name[..start],
+                "#".repeat(end + 1 - start),
+                &name[end + 1..]
+            );
+            if !patterns.contains(&p) {
+                patterns.push(p);
+            }
+        }
+        patterns.sort();
+        let text = dir.display().to_string();
+        match patterns.len() {
+            0 => Err(Error::EmptySequence {
+                pattern: format!("{text}/*.exr"),
+            }),
+            1 => Self::parse(&dir.join(&patterns[0]).to_string_lossy()),
+            _ => Err(Error::Parse {
+                what: "sequence folder",
+                text,
+                detail: format!(
+                    "it holds several sequences ({}); give a pattern instead",
+                    patterns.join(", ")
+                ),
+            }),
+        }
+    }
+
+    /// A pattern (`####`, `%04d`, `$F4`) or, for an existing folder, the pattern of the
+    /// numbered EXRs inside it.
+    pub fn parse_or_folder(text: &str) -> Result<Self> {
+        let p = Path::new(text);
+        if p.is_dir() {
+            Self::from_folder(p)
+        } else {
+            Self::parse(text)
+        }
+    }
+
     /// The pattern as the user wrote it.
     pub fn as_str(&self) -> &str {
         &self.text
@@ -338,6 +397,25 @@ mod tests {
         assert_eq!(FrameRange::parse("1:9:4").unwrap().frames(), vec![1, 5, 9]);
         assert!(FrameRange::parse("10-1").is_err());
         assert!(FrameRange::parse("1-10x0").is_err());
+    }
+
+    #[test]
+    fn folders_infer_their_pattern() {
+        let dir = tempfile::tempdir().unwrap();
+        for f in [7, 8, 9] {
+            std::fs::write(dir.path().join(format!("shot_v2.{f:04}.exr")), b"").unwrap();
+        }
+        let p = SequencePattern::parse_or_folder(&dir.path().to_string_lossy()).unwrap();
+        assert_eq!(p.discover().unwrap(), vec![7, 8, 9]);
+        assert!(p.as_str().ends_with("shot_v2.####.exr"), "{p}");
+        std::fs::write(dir.path().join("other.0001.exr"), b"").unwrap();
+        let e = SequencePattern::from_folder(dir.path())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("several sequences") && e.contains("other.####.exr"),
+            "{e}"
+        );
     }
 
     #[test]

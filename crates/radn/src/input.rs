@@ -3,7 +3,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, Result};
 use radn_core::exr_file::ExrFile;
 use radn_core::frame::{FrameReader, Requirements};
 use radn_core::hygiene::NonFinitePolicy;
@@ -70,34 +70,10 @@ impl ChannelArgs {
     }
 }
 
-/// A sequence given as a pattern (`####`, `%04d`, `$F4`) or a folder of EXRs, with an optional range.
+/// A sequence given as a pattern (`####`, `%04d`, `$F4`) or a folder of numbered EXRs, with
+/// an optional range: the frame numbers and their files.
 pub fn sequence_files(spec: &str, frames: Option<&str>) -> Result<Vec<(i64, PathBuf)>> {
-    let path = std::path::Path::new(spec);
-    if path.is_dir() {
-        let mut files: Vec<(i64, PathBuf)> = std::fs::read_dir(path)
-            .with_context(|| format!("cannot list '{}'", path.display()))?
-            .flatten()
-            .map(|e| e.path())
-            .filter(|p| p.extension().is_some_and(|e| e.eq_ignore_ascii_case("exr")))
-            .filter_map(|p| frame_number(&p).map(|n| (n, p)))
-            .collect();
-        files.sort();
-        if let Some(r) = frames {
-            let range = radn_core::sequence::FrameRange::parse(r)?;
-            let wanted = range.frames();
-            for f in &wanted {
-                if !files.iter().any(|(n, _)| n == f) {
-                    return Err(anyhow!("frame {f} is missing from '{}'", path.display()));
-                }
-            }
-            files.retain(|(n, _)| wanted.contains(n));
-        }
-        if files.is_empty() {
-            return Err(anyhow!("'{}' holds no numbered EXR files", path.display()));
-        }
-        return Ok(files);
-    }
-    let pattern = radn_core::sequence::SequencePattern::parse(spec)?;
+    let pattern = radn_core::sequence::SequencePattern::parse_or_folder(spec)?;
     let range = frames
         .map(radn_core::sequence::FrameRange::parse)
         .transpose()?;
@@ -106,19 +82,4 @@ pub fn sequence_files(spec: &str, frames: Option<&str>) -> Result<Vec<(i64, Path
         .into_iter()
         .map(|f| (f, pattern.path(f)))
         .collect())
-}
-
-/// The frame number of a file: the last run of digits in its name.
-pub fn frame_number(p: &std::path::Path) -> Option<i64> {
-    let stem = p.file_stem()?.to_string_lossy();
-    let digits: String = stem
-        .chars()
-        .rev()
-        .skip_while(|c| !c.is_ascii_digit())
-        .take_while(|c| c.is_ascii_digit())
-        .collect::<Vec<_>>()
-        .into_iter()
-        .rev()
-        .collect();
-    digits.parse().ok()
 }
