@@ -21,3 +21,4 @@ pub mod warp;
 
 pub use error::{Error, Result};
 pub use plane::Plane;
+pub mod classic;

@@ -1,0 +1,206 @@
+//! Small single-channel image operations shared by the classic denoiser: blur, pyramid
+//! resampling, gradients, median filtering, box sums.
+
+use rayon::prelude::*;
+
+use crate::plane::Plane;
+
+/// Separable Gaussian blur of every channel (edge repeat).
+pub fn gaussian(p: &Plane, sigma: f32) -> Plane {
+    if sigma <= 0.0 {
+        return p.clone();
+    }
+    let r = (3.0 * sigma).ceil() as isize;
+    let k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let s: f32 = k.iter().sum();
+    let k: Vec<f32> = k.into_iter().map(|v| v / s).collect();
+    separable(p, &k)
+}
+
+/// Applies the same 1-D kernel along x then y.
+pub fn separable(p: &Plane, k: &[f32]) -> Plane {
+    let (w, h) = (p.width(), p.height());
+    let r = (k.len() / 2) as isize;
+    let mut tmp = Plane::zeros(w, h, p.channels());
+    tmp.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
+        let src = &p.data()[row * w..(row + 1) * w];
+        for (x, d) in dst.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (j, kv) in k.iter().enumerate() {
+                let xx = (x as isize + j as isize - r).clamp(0, w as isize - 1) as usize;
+                acc += kv * src[xx];
+            }
+            *d = acc;
+        }
+    });
+    let mut out = Plane::zeros(w, h, p.channels());
+    out.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
+        let c = row / h;
+        let y = row % h;
+        let ch = tmp.channel(c);
+        for (x, d) in dst.iter_mut().enumerate() {
+            let mut acc = 0.0;
+            for (j, kv) in k.iter().enumerate() {
+                let yy = (y as isize + j as isize - r).clamp(0, h as isize - 1) as usize;
+                acc += kv * ch[yy * w + x];
+            }
+            *d = acc;
+        }
+    });
+    out
+}
+
+/// Box mean over a (2r+1)² window with edge repeat, O(1) per pixel (running sums).
+pub fn box_mean(p: &Plane, r: usize) -> Plane {
+    let n = (2 * r + 1) as f32;
+    let k = vec![1.0 / n; 2 * r + 1];
+    if r <= 3 {
+        return separable(p, &k);
+    }
+    let (w, h) = (p.width(), p.height());
+    let ri = r as isize;
+    let run = |src: &[f32], len: usize, stride: usize, dst: &mut [f32], dstride: usize| {
+        let at = |i: isize| src[(i.clamp(0, len as isize - 1) as usize) * stride];
+        let mut acc: f32 = (-ri..=ri).map(at).sum();
+        for i in 0..len {
+            dst[i * dstride] = acc / n;
+            acc += at(i as isize + ri + 1) - at(i as isize - ri);
+        }
+    };
+    let mut tmp = Plane::zeros(w, h, p.channels());
+    tmp.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
+        run(&p.data()[row * w..(row + 1) * w], w, 1, dst, 1);
+    });
+    // columns: transpose-free, one column at a time per channel
+    let mut out = Plane::zeros(w, h, p.channels());
+    for c in 0..p.channels() {
+        let src = tmp.channel(c);
+        let cols: Vec<Vec<f32>> = (0..w)
+            .into_par_iter()
+            .map(|x| {
+                let mut col = vec![0.0; h];
+                run(&src[x..], h, w, &mut col, 1);
+                col
+            })
+            .collect();
+        let dst = out.channel_mut(c);
+        for (x, col) in cols.iter().enumerate() {
+            for (y, v) in col.iter().enumerate() {
+                dst[y * w + x] = *v;
+            }
+        }
+    }
+    out
+}
+
+/// Halves the resolution (Gaussian prefilter, then bilinear resampling at the new centres).
+pub fn downsample(p: &Plane, w2: usize, h2: usize) -> Plane {
+    let sx = p.width() as f32 / w2 as f32;
+    let sy = p.height() as f32 / h2 as f32;
+    let blurred = gaussian(p, 0.6 * sx.max(sy));
+    resample(&blurred, w2, h2)
+}
+
+/// Bilinear resampling to a new size (pixel centres aligned).
+pub fn resample(p: &Plane, w2: usize, h2: usize) -> Plane {
+    let sx = p.width() as f32 / w2 as f32;
+    let sy = p.height() as f32 / h2 as f32;
+    let mut out = Plane::zeros(w2, h2, p.channels());
+    out.data_mut().par_chunks_mut(w2).enumerate().for_each(|(row, dst)| {
+        let c = row / h2;
+        let y = row % h2;
+        for (x, d) in dst.iter_mut().enumerate() {
+            *d = crate::motion::bilinear(p, c, (x as f32 + 0.5) * sx - 0.5, (y as f32 + 0.5) * sy - 0.5);
+        }
+    });
+    out
+}
+
+/// Central-difference gradient of a one-channel plane: (d/dx, d/dy).
+pub fn gradient(p: &Plane) -> (Plane, Plane) {
+    let (w, h) = (p.width(), p.height());
+    let d = p.data();
+    let mut gx = Plane::zeros(w, h, 1);
+    let mut gy = Plane::zeros(w, h, 1);
+    gx.data_mut().par_chunks_mut(w).zip(gy.data_mut().par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
+        let ym = y.saturating_sub(1);
+        let yp = (y + 1).min(h - 1);
+        for x in 0..w {
+            let xm = x.saturating_sub(1);
+            let xp = (x + 1).min(w - 1);
+            rx[x] = (d[y * w + xp] - d[y * w + xm]) / (xp - xm).max(1) as f32;
+            ry[x] = (d[yp * w + x] - d[ym * w + x]) / (yp - ym).max(1) as f32;
+        }
+    });
+    (gx, gy)
+}
+
+/// 3×3 median of every channel (edge repeat).
+pub fn median3(p: &Plane) -> Plane {
+    let (w, h) = (p.width(), p.height());
+    let mut out = Plane::zeros(w, h, p.channels());
+    out.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
+        let c = row / h;
+        let y = row % h;
+        let ch = p.channel(c);
+        let mut v = [0f32; 9];
+        for (x, d) in dst.iter_mut().enumerate() {
+            let mut k = 0;
+            for dy in [-1isize, 0, 1] {
+                let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                for dx in [-1isize, 0, 1] {
+                    let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                    v[k] = ch[yy * w + xx];
+                    k += 1;
+                }
+            }
+            v.sort_unstable_by(f32::total_cmp);
+            *d = v[4];
+        }
+    });
+    out
+}
+
+/// Luminance (Rec. 709) of an RGB plane.
+pub fn luminance(rgb: &Plane) -> Plane {
+    let n = rgb.pixels();
+    let d = rgb.data();
+    let v: Vec<f32> = (0..n).into_par_iter().map(|i| 0.2126 * d[i] + 0.7152 * d[n + i] + 0.0722 * d[2 * n + i]).collect();
+    Plane::from_vec(rgb.width(), rgb.height(), 1, v)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_mean_matches_brute_force() {
+        let p = Plane::from_fn(23, 17, 2, |x, y, c| ((x * 7 + y * 3 + c * 5) % 11) as f32);
+        for r in [1usize, 5] {
+            let b = box_mean(&p, r);
+            for c in 0..2 {
+                for y in 0..17 {
+                    for x in 0..23 {
+                        let mut s = 0.0;
+                        for dy in -(r as isize)..=r as isize {
+                            for dx in -(r as isize)..=r as isize {
+                                let xx = (x as isize + dx).clamp(0, 22) as usize;
+                                let yy = (y as isize + dy).clamp(0, 16) as usize;
+                                s += p.get(xx, yy, c);
+                            }
+                        }
+                        let want = s / ((2 * r + 1) * (2 * r + 1)) as f32;
+                        assert!((b.get(x, y, c) - want).abs() < 1e-4, "r={r} ({x},{y})");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn median_removes_an_outlier() {
+        let mut p = Plane::filled(5, 5, 1, 1.0);
+        p.set(2, 2, 0, 100.0);
+        assert_eq!(median3(&p).get(2, 2, 0), 1.0);
+    }
+}

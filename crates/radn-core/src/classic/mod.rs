@@ -1,0 +1,6 @@
+//! The classic (non-neural) temporal denoiser: optical-flow refinement of the renderer's
+//! motion, robust temporal averaging, joint non-local means and a guided filter. It makes the
+//! pseudo-references for training (paper section 6) and is `radn denoise --method classic`.
+
+pub mod image_ops;
+pub mod tvl1;
