@@ -11,7 +11,9 @@ pub fn gaussian(p: &Plane, sigma: f32) -> Plane {
         return p.clone();
     }
     let r = (3.0 * sigma).ceil() as isize;
-    let k: Vec<f32> = (-r..=r).map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp()).collect();
+    let k: Vec<f32> = (-r..=r)
+        .map(|i| (-(i * i) as f32 / (2.0 * sigma * sigma)).exp())
+        .collect();
     let s: f32 = k.iter().sum();
     let k: Vec<f32> = k.into_iter().map(|v| v / s).collect();
     separable(p, &k)
@@ -22,31 +24,37 @@ pub fn separable(p: &Plane, k: &[f32]) -> Plane {
     let (w, h) = (p.width(), p.height());
     let r = (k.len() / 2) as isize;
     let mut tmp = Plane::zeros(w, h, p.channels());
-    tmp.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
-        let src = &p.data()[row * w..(row + 1) * w];
-        for (x, d) in dst.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let xx = (x as isize + j as isize - r).clamp(0, w as isize - 1) as usize;
-                acc += kv * src[xx];
+    tmp.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let src = &p.data()[row * w..(row + 1) * w];
+            for (x, d) in dst.iter_mut().enumerate() {
+                let mut acc = 0.0;
+                for (j, kv) in k.iter().enumerate() {
+                    let xx = (x as isize + j as isize - r).clamp(0, w as isize - 1) as usize;
+                    acc += kv * src[xx];
+                }
+                *d = acc;
             }
-            *d = acc;
-        }
-    });
+        });
     let mut out = Plane::zeros(w, h, p.channels());
-    out.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
-        let c = row / h;
-        let y = row % h;
-        let ch = tmp.channel(c);
-        for (x, d) in dst.iter_mut().enumerate() {
-            let mut acc = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let yy = (y as isize + j as isize - r).clamp(0, h as isize - 1) as usize;
-                acc += kv * ch[yy * w + x];
+    out.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let c = row / h;
+            let y = row % h;
+            let ch = tmp.channel(c);
+            for (x, d) in dst.iter_mut().enumerate() {
+                let mut acc = 0.0;
+                for (j, kv) in k.iter().enumerate() {
+                    let yy = (y as isize + j as isize - r).clamp(0, h as isize - 1) as usize;
+                    acc += kv * ch[yy * w + x];
+                }
+                *d = acc;
             }
-            *d = acc;
-        }
-    });
+        });
     out
 }
 
@@ -68,9 +76,12 @@ pub fn box_mean(p: &Plane, r: usize) -> Plane {
         }
     };
     let mut tmp = Plane::zeros(w, h, p.channels());
-    tmp.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
-        run(&p.data()[row * w..(row + 1) * w], w, 1, dst, 1);
-    });
+    tmp.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            run(&p.data()[row * w..(row + 1) * w], w, 1, dst, 1);
+        });
     // columns: transpose-free, one column at a time per channel
     let mut out = Plane::zeros(w, h, p.channels());
     for c in 0..p.channels() {
@@ -106,13 +117,21 @@ pub fn resample(p: &Plane, w2: usize, h2: usize) -> Plane {
     let sx = p.width() as f32 / w2 as f32;
     let sy = p.height() as f32 / h2 as f32;
     let mut out = Plane::zeros(w2, h2, p.channels());
-    out.data_mut().par_chunks_mut(w2).enumerate().for_each(|(row, dst)| {
-        let c = row / h2;
-        let y = row % h2;
-        for (x, d) in dst.iter_mut().enumerate() {
-            *d = crate::motion::bilinear(p, c, (x as f32 + 0.5) * sx - 0.5, (y as f32 + 0.5) * sy - 0.5);
-        }
-    });
+    out.data_mut()
+        .par_chunks_mut(w2)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let c = row / h2;
+            let y = row % h2;
+            for (x, d) in dst.iter_mut().enumerate() {
+                *d = crate::motion::bilinear(
+                    p,
+                    c,
+                    (x as f32 + 0.5) * sx - 0.5,
+                    (y as f32 + 0.5) * sy - 0.5,
+                );
+            }
+        });
     out
 }
 
@@ -122,16 +141,20 @@ pub fn gradient(p: &Plane) -> (Plane, Plane) {
     let d = p.data();
     let mut gx = Plane::zeros(w, h, 1);
     let mut gy = Plane::zeros(w, h, 1);
-    gx.data_mut().par_chunks_mut(w).zip(gy.data_mut().par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
-        let ym = y.saturating_sub(1);
-        let yp = (y + 1).min(h - 1);
-        for x in 0..w {
-            let xm = x.saturating_sub(1);
-            let xp = (x + 1).min(w - 1);
-            rx[x] = (d[y * w + xp] - d[y * w + xm]) / (xp - xm).max(1) as f32;
-            ry[x] = (d[yp * w + x] - d[ym * w + x]) / (yp - ym).max(1) as f32;
-        }
-    });
+    gx.data_mut()
+        .par_chunks_mut(w)
+        .zip(gy.data_mut().par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (rx, ry))| {
+            let ym = y.saturating_sub(1);
+            let yp = (y + 1).min(h - 1);
+            for x in 0..w {
+                let xm = x.saturating_sub(1);
+                let xp = (x + 1).min(w - 1);
+                rx[x] = (d[y * w + xp] - d[y * w + xm]) / (xp - xm).max(1) as f32;
+                ry[x] = (d[yp * w + x] - d[ym * w + x]) / (yp - ym).max(1) as f32;
+            }
+        });
     (gx, gy)
 }
 
@@ -139,25 +162,28 @@ pub fn gradient(p: &Plane) -> (Plane, Plane) {
 pub fn median3(p: &Plane) -> Plane {
     let (w, h) = (p.width(), p.height());
     let mut out = Plane::zeros(w, h, p.channels());
-    out.data_mut().par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
-        let c = row / h;
-        let y = row % h;
-        let ch = p.channel(c);
-        let mut v = [0f32; 9];
-        for (x, d) in dst.iter_mut().enumerate() {
-            let mut k = 0;
-            for dy in [-1isize, 0, 1] {
-                let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-                for dx in [-1isize, 0, 1] {
-                    let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                    v[k] = ch[yy * w + xx];
-                    k += 1;
+    out.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let c = row / h;
+            let y = row % h;
+            let ch = p.channel(c);
+            let mut v = [0f32; 9];
+            for (x, d) in dst.iter_mut().enumerate() {
+                let mut k = 0;
+                for dy in [-1isize, 0, 1] {
+                    let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                    for dx in [-1isize, 0, 1] {
+                        let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                        v[k] = ch[yy * w + xx];
+                        k += 1;
+                    }
                 }
+                v.sort_unstable_by(f32::total_cmp);
+                *d = v[4];
             }
-            v.sort_unstable_by(f32::total_cmp);
-            *d = v[4];
-        }
-    });
+        });
     out
 }
 
@@ -165,7 +191,10 @@ pub fn median3(p: &Plane) -> Plane {
 pub fn luminance(rgb: &Plane) -> Plane {
     let n = rgb.pixels();
     let d = rgb.data();
-    let v: Vec<f32> = (0..n).into_par_iter().map(|i| 0.2126 * d[i] + 0.7152 * d[n + i] + 0.0722 * d[2 * n + i]).collect();
+    let v: Vec<f32> = (0..n)
+        .into_par_iter()
+        .map(|i| 0.2126 * d[i] + 0.7152 * d[n + i] + 0.0722 * d[2 * n + i])
+        .collect();
     Plane::from_vec(rgb.width(), rgb.height(), 1, v)
 }
 
@@ -202,5 +231,52 @@ mod tests {
         let mut p = Plane::filled(5, 5, 1, 1.0);
         p.set(2, 2, 0, 100.0);
         assert_eq!(median3(&p).get(2, 2, 0), 1.0);
+    }
+}
+
+/// Box sum over a (2r+1)² window of a one-channel buffer (edge repeat), by running sums:
+/// the cost does not depend on `r`. Rows, then column chunks, run in parallel.
+pub fn box_sum_into(src: &[f32], w: usize, h: usize, r: usize, tmp: &mut [f32], out: &mut [f32]) {
+    let ri = r as isize;
+    tmp.par_chunks_mut(w).enumerate().for_each(|(y, dst)| {
+        let row = &src[y * w..(y + 1) * w];
+        let at = |i: isize| row[i.clamp(0, w as isize - 1) as usize];
+        let mut acc: f32 = (-ri..=ri).map(at).sum();
+        for (x, d) in dst.iter_mut().enumerate() {
+            *d = acc;
+            acc += at(x as isize + ri + 1) - at(x as isize - ri);
+        }
+    });
+    const CHUNK: usize = 64;
+    let tmp: &[f32] = tmp;
+    let cols: Vec<(usize, Vec<f32>)> = (0..w.div_ceil(CHUNK))
+        .into_par_iter()
+        .map(|k| {
+            let x0 = k * CHUNK;
+            let x1 = (x0 + CHUNK).min(w);
+            let cw = x1 - x0;
+            let row = |y: isize| &tmp[(y.clamp(0, h as isize - 1) as usize) * w + x0..][..cw];
+            let mut acc = vec![0f32; cw];
+            for y in -ri..=ri {
+                for (a, v) in acc.iter_mut().zip(row(y)) {
+                    *a += v;
+                }
+            }
+            let mut block = vec![0f32; cw * h];
+            for y in 0..h {
+                block[y * cw..(y + 1) * cw].copy_from_slice(&acc);
+                let (add, sub) = (row(y as isize + ri + 1), row(y as isize - ri));
+                for i in 0..cw {
+                    acc[i] += add[i] - sub[i];
+                }
+            }
+            (x0, block)
+        })
+        .collect();
+    for (x0, block) in cols {
+        let cw = block.len() / h;
+        for y in 0..h {
+            out[y * w + x0..y * w + x0 + cw].copy_from_slice(&block[y * cw..(y + 1) * cw]);
+        }
     }
 }

@@ -3,4 +3,7 @@
 //! pseudo-references for training (paper section 6) and is `radn denoise --method classic`.
 
 pub mod image_ops;
+pub mod nlm;
+pub mod refine;
+pub mod temporal;
 pub mod tvl1;

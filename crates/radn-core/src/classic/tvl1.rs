@@ -53,13 +53,18 @@ impl Default for TvL1Params {
 pub fn tvl1_flow(i0: &Plane, i1: &Plane, init: &Plane, p: &TvL1Params) -> Plane {
     let (w, h) = (i0.width(), i0.height());
     let (a, b) = if p.texture_alpha > 0.0 {
-        let (mut a, mut b) = (structure_texture(i0, p.texture_alpha), structure_texture(i1, p.texture_alpha));
+        let (mut a, mut b) = (
+            structure_texture(i0, p.texture_alpha),
+            structure_texture(i1, p.texture_alpha),
+        );
         // one scale for both images, or brightness constancy would break
         let (lo, hi) = a
             .data()
             .iter()
             .chain(b.data())
-            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| (l.min(v), h.max(v)));
+            .fold((f32::INFINITY, f32::NEG_INFINITY), |(l, h), &v| {
+                (l.min(v), h.max(v))
+            });
         let k = 255.0 / (hi - lo).max(1e-6);
         for img in [&mut a, &mut b] {
             img.data_mut().iter_mut().for_each(|v| *v = (*v - lo) * k);
@@ -87,12 +92,20 @@ pub fn tvl1_flow(i0: &Plane, i1: &Plane, init: &Plane, p: &TvL1Params) -> Plane 
     }
     let coarsest = sizes.len() - 1;
     let (cw, ch) = sizes[coarsest];
-    let mut u = scale_flow(&resample(init, cw, ch), cw as f32 / w as f32, ch as f32 / h as f32);
+    let mut u = scale_flow(
+        &resample(init, cw, ch),
+        cw as f32 / w as f32,
+        ch as f32 / h as f32,
+    );
     for level in (0..=coarsest).rev() {
         u = solve_level(&pyr0[level], &pyr1[level], u, p);
         if level > 0 {
             let (nw, nh) = sizes[level - 1];
-            u = scale_flow(&resample(&u, nw, nh), nw as f32 / sizes[level].0 as f32, nh as f32 / sizes[level].1 as f32);
+            u = scale_flow(
+                &resample(&u, nw, nh),
+                nw as f32 / sizes[level].0 as f32,
+                nh as f32 / sizes[level].1 as f32,
+            );
         }
     }
     u
@@ -171,16 +184,19 @@ fn solve_level(i0: &Plane, i1: &Plane, mut u: Plane, p: &TvL1Params) -> Plane {
                 let uc = u.channel(comp);
                 let (pa, pb) = dual.split_at_mut(k + 1);
                 let (px, py) = (&mut pa[k], &mut pb[0]);
-                px.par_chunks_mut(w).zip(py.par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
-                    for x in 0..w {
-                        let i = y * w + x;
-                        let fx = if x + 1 < w { uc[i + 1] - uc[i] } else { 0.0 };
-                        let fy = if y + 1 < h { uc[i + w] - uc[i] } else { 0.0 };
-                        let norm = 1.0 + taut * (fx * fx + fy * fy).sqrt();
-                        rx[x] = (rx[x] + taut * fx) / norm;
-                        ry[x] = (ry[x] + taut * fy) / norm;
-                    }
-                });
+                px.par_chunks_mut(w)
+                    .zip(py.par_chunks_mut(w))
+                    .enumerate()
+                    .for_each(|(y, (rx, ry))| {
+                        for x in 0..w {
+                            let i = y * w + x;
+                            let fx = if x + 1 < w { uc[i + 1] - uc[i] } else { 0.0 };
+                            let fy = if y + 1 < h { uc[i + w] - uc[i] } else { 0.0 };
+                            let norm = 1.0 + taut * (fx * fx + fy * fy).sqrt();
+                            rx[x] = (rx[x] + taut * fx) / norm;
+                            ry[x] = (ry[x] + taut * fy) / norm;
+                        }
+                    });
             }
             if (change / n as f64) < p.epsilon as f64 {
                 break;
@@ -223,7 +239,12 @@ fn divergence(px: &[f32], py: &[f32], w: usize, h: usize) -> Vec<f32> {
 /// varying shading so the flow follows texture rather than lighting changes.
 pub fn structure_texture(img: &Plane, alpha: f32) -> Plane {
     let structure = rof(img, 0.125, 60);
-    let t: Vec<f32> = img.data().iter().zip(structure.data()).map(|(i, s)| i - alpha * s).collect();
+    let t: Vec<f32> = img
+        .data()
+        .iter()
+        .zip(structure.data())
+        .map(|(i, s)| i - alpha * s)
+        .collect();
     Plane::from_vec(img.width(), img.height(), 1, t)
 }
 
@@ -238,16 +259,19 @@ fn rof(f: &Plane, theta: f32, iterations: usize) -> Plane {
     for _ in 0..iterations {
         let div = divergence(&px, &py, w, h);
         let v: Vec<f32> = (0..n).map(|i| div[i] - fd[i] / theta).collect();
-        px.par_chunks_mut(w).zip(py.par_chunks_mut(w)).enumerate().for_each(|(y, (rx, ry))| {
-            for x in 0..w {
-                let i = y * w + x;
-                let gx = if x + 1 < w { v[i + 1] - v[i] } else { 0.0 };
-                let gy = if y + 1 < h { v[i + w] - v[i] } else { 0.0 };
-                let norm = 1.0 + tau * (gx * gx + gy * gy).sqrt();
-                rx[x] = (rx[x] + tau * gx) / norm;
-                ry[x] = (ry[x] + tau * gy) / norm;
-            }
-        });
+        px.par_chunks_mut(w)
+            .zip(py.par_chunks_mut(w))
+            .enumerate()
+            .for_each(|(y, (rx, ry))| {
+                for x in 0..w {
+                    let i = y * w + x;
+                    let gx = if x + 1 < w { v[i + 1] - v[i] } else { 0.0 };
+                    let gy = if y + 1 < h { v[i + w] - v[i] } else { 0.0 };
+                    let norm = 1.0 + tau * (gx * gx + gy * gy).sqrt();
+                    rx[x] = (rx[x] + tau * gx) / norm;
+                    ry[x] = (ry[x] + tau * gy) / norm;
+                }
+            });
     }
     let div = divergence(&px, &py, w, h);
     Plane::from_vec(w, h, 1, (0..n).map(|i| fd[i] - theta * div[i]).collect())
@@ -263,12 +287,20 @@ mod tests {
             .map(|k| {
                 let a = k as f32 * 2.399;
                 let f = 0.08 + 0.02 * (k % 7) as f32;
-                (f * a.cos(), f * a.sin(), (k * 37 % 11) as f32, 1.0 / (1.0 + k as f32 * 0.1))
+                (
+                    f * a.cos(),
+                    f * a.sin(),
+                    (k * 37 % 11) as f32,
+                    1.0 / (1.0 + k as f32 * 0.1),
+                )
             })
             .collect();
         Plane::from_fn(w, h, 1, |x, y, _| {
             let (x, y) = (x as f32 + dx, y as f32 + dy);
-            let v: f32 = waves.iter().map(|(fx, fy, ph, amp)| amp * (fx * x + fy * y + ph).sin()).sum();
+            let v: f32 = waves
+                .iter()
+                .map(|(fx, fy, ph, amp)| amp * (fx * x + fy * y + ph).sin())
+                .sum();
             128.0 + 12.0 * v
         })
     }
@@ -292,7 +324,10 @@ mod tests {
             }
         }
         let (ex, ey) = (ex / n as f64, ey / n as f64);
-        assert!(ex.abs() < 0.05 && ey.abs() < 0.05, "mean error ({ex:.4}, {ey:.4}) px");
+        assert!(
+            ex.abs() < 0.05 && ey.abs() < 0.05,
+            "mean error ({ex:.4}, {ey:.4}) px"
+        );
         // and pixel by pixel: every interior pixel within 0.05 px
         let mut errs: Vec<f32> = Vec::new();
         for y in 12..h - 12 {
