@@ -22,3 +22,4 @@ pub mod warp;
 pub use error::{Error, Result};
 pub use plane::Plane;
 pub mod classic;
+pub mod job;

@@ -16,6 +16,18 @@ fn sample(level: &str, frame: i64) -> PathBuf {
     ))
 }
 
+/// Asserts two sample vectors are identical, naming the first difference (not dumping both).
+fn assert_same(a: &[u32], b: &[u32], what: &str) {
+    assert_eq!(a.len(), b.len(), "{what}: lengths differ");
+    if let Some(i) = a.iter().zip(b).position(|(x, y)| x != y) {
+        panic!(
+            "{what}: sample {i} differs ({} vs {})",
+            f32::from_bits(a[i]),
+            f32::from_bits(b[i])
+        );
+    }
+}
+
 fn bits(f: &ExrFile, name: &str) -> Vec<u32> {
     f.channel_f32(name)
         .unwrap()
@@ -36,7 +48,7 @@ fn round_trip_keeps_every_unchanged_channel_bit_exact() {
     assert_eq!(back.custom_attribute_names(), src.custom_attribute_names());
     for n in src.channel_names() {
         assert_eq!(back.channel_kind(&n), src.channel_kind(&n), "{n}");
-        assert_eq!(bits(&back, &n), bits(&src, &n), "{n}");
+        assert_same(&bits(&back, &n), &bits(&src, &n), &n);
     }
     // replace the beauty and add a channel, as denoising does
     let mut edited = src.clone();
@@ -67,16 +79,16 @@ fn round_trip_keeps_every_unchanged_channel_bit_exact() {
             "{n} changed type"
         );
         if replaced.contains(&n.as_str()) {
-            let want: Vec<f32> = src
+            // the new values, rounded to the channel's own storage type (half)
+            let want: Vec<u32> = src
                 .channel_f32(&n)
                 .unwrap()
                 .iter()
-                .map(|x| x * 0.5)
+                .map(|x| half::f16::from_f32(x * 0.5).to_f32().to_bits())
                 .collect();
-            // halving a half-float is exact
-            assert_eq!(back.channel_f32(&n).unwrap(), want, "{n}");
+            assert_same(&bits(&back, &n), &want, &n);
         } else {
-            assert_eq!(bits(&back, &n), bits(&src, &n), "{n} changed");
+            assert_same(&bits(&back, &n), &bits(&src, &n), &n);
         }
     }
     assert_eq!(
@@ -115,23 +127,46 @@ fn warping_brings_side_frames_closer_to_the_centre_reference() {
         },
     );
     let mixed = align_window(&window, &AlignParams::default());
+    let n = reference.pixels();
+    // the centre frame's own error: its render noise
+    let noise = mse(&tonemap_plane(&frames[2].color), &reference);
     for k in [0usize, 1, 3, 4] {
+        let offset = raw.frames[k].offset;
         let unwarped = mse(&tonemap_plane(&frames[k].color), &reference);
-        let warped = mse(&tonemap_plane(&raw.frames[k].color), &reference);
+        let warped_tm = tonemap_plane(&raw.frames[k].color);
+        let warped = mse(&warped_tm, &reference);
         let with_mix = mse(&tonemap_plane(&mixed.frames[k].color), &reference);
+        // where confidence is high, the warped frame is as good as a render of the centre frame
+        let conf = raw.frames[k].confidence.data();
+        let (mut e, mut m) = (0.0f64, 0usize);
+        for i in (0..n).filter(|&i| conf[i] > 0.9) {
+            for c in 0..3 {
+                e += ((warped_tm.data()[c * n + i] - reference.data()[c * n + i]) as f64).powi(2);
+            }
+            m += 3;
+        }
+        let confident = e / m as f64;
         eprintln!(
-            "offset {:+}: unwarped {unwarped:.6}  warped {warped:.6}  warped+mixed {with_mix:.6}",
-            raw.frames[k].offset
+            "offset {offset:+}: unwarped {unwarped:.5} warped {warped:.5} mixed {with_mix:.5}; on {:.0}% confident pixels {confident:.5} (centre noise {noise:.5})",
+            100.0 * m as f64 / (3 * n) as f64
+        );
+        // glass and mirrors (large on this sample) do not move with their surface: over all
+        // pixels the gain is modest, on trusted pixels it is complete
+        assert!(
+            warped < 0.85 * unwarped,
+            "offset {offset}: warped {warped} vs unwarped {unwarped}"
         );
         assert!(
-            warped < 0.5 * unwarped,
-            "offset {}: warped {warped} vs unwarped {unwarped}",
-            raw.frames[k].offset
+            m > n,
+            "offset {offset}: fewer than a third of the pixels are trusted"
         );
         assert!(
-            with_mix <= warped * 1.05,
-            "offset {}: mixing made it worse",
-            raw.frames[k].offset
+            confident < 1.25 * noise,
+            "offset {offset}: trusted pixels {confident} vs centre noise {noise}"
+        );
+        assert!(
+            with_mix < warped,
+            "offset {offset}: centre mixing made it worse"
         );
     }
 }

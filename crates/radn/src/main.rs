@@ -22,6 +22,8 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Command {
+    /// Denoise an EXR sequence.
+    Denoise(cmd::denoise::Args),
     /// Show an EXR's parts, channels, types, size and value statistics.
     Inspect(cmd::inspect::Args),
     /// Write the aligned (warped, confidence-weighted) window of one frame to an EXR.
@@ -56,6 +58,7 @@ fn main() -> std::process::ExitCode {
         }
     }
     let result = match cli.command {
+        Command::Denoise(a) => cmd::denoise::run(a),
         Command::Inspect(a) => cmd::inspect::run(a),
         Command::Warp(a) => cmd::warp::run(a),
         Command::Eval(a) => cmd::eval::run(a),

@@ -26,7 +26,7 @@ def parse_res(text):
 
 
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
-                 calibration=False, log=print):
+                 calibration=False, levels=LEVELS, log=print):
     import bpy  # noqa: F401  (imported here so --help works without bpy)
 
     t0 = time.time()
@@ -36,12 +36,15 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         desc = scenes.build(seed, frames=frames, resolution=res, layout=layout)
     sc = scenes.bpy.context.scene
     render.configure(sc, exr_half=half, threads=threads)
-    levels = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, log=log)
+    for lv in levels:
+        if lv not in LEVELS:
+            raise SystemExit(f"unknown level '{lv}'; known: {', '.join(LEVELS)}")
+    done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels, log=log)
     info = {
         "seed": seed,
         "frames": list(frames),
         "resolution": list(res),
-        "levels": levels,
+        "levels": done,
         "reference_frames": list(reference_frames or frames) if reference_spp else [],
         "layout": "<scene>/<level>/frame_####.exr",
         "exr": "multilayer half PIZ" if half else "multilayer float ZIP",
@@ -66,6 +69,7 @@ def main(argv=None):
     common.add_argument("--half", action="store_true", help="write half-float PIZ EXRs (smaller)")
     common.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
     common.add_argument("--layout", choices=["indoor", "outdoor"], default=None, help="force a layout")
+    common.add_argument("--levels", default=",".join(LEVELS), help="noise levels to render (comma-separated)")
     s = sub.add_parser("scene", parents=[common], help="render one scene")
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--out", required=True, help="the scene's folder")
@@ -73,6 +77,7 @@ def main(argv=None):
     t = sub.add_parser("trim", help="copy a scene keeping only the passes radn reads (for the shipped sample)")
     t.add_argument("src")
     t.add_argument("dst")
+    t.add_argument("--crop", default=None, help="x,y,w,h: keep only this region")
     d = sub.add_parser("dataset", parents=[common], help="render a split of S scenes")
     d.add_argument("--split", choices=sorted(SPLIT_BASE), required=True)
     d.add_argument("--scenes", type=int, required=True)
@@ -80,14 +85,15 @@ def main(argv=None):
     a = p.parse_args(argv)
     if a.cmd == "trim":
         from .trim import trim_scene
-        print(f"wrote {trim_scene(a.src, a.dst)}")
+        crop = tuple(int(v) for v in a.crop.split(",")) if a.crop else None
+        print(f"wrote {trim_scene(a.src, a.dst, crop)}")
         return 0
     frames = parse_range(a.frames)
     res = parse_res(a.res)
     ref_frames = parse_range(a.reference_frames) if a.reference_frames else None
     if a.cmd == "scene":
         m = render_scene(a.seed, a.out, frames, res, a.spp, a.reference_spp, ref_frames, a.half, a.threads,
-                         a.layout, a.calibration)
+                         a.layout, a.calibration, levels=tuple(a.levels.split(",")))
         print(f"wrote {m}")
         return 0
     t0 = time.time()
@@ -95,7 +101,8 @@ def main(argv=None):
         seed = SPLIT_BASE[a.split] + i
         out = os.path.join(a.out, f"scene_{seed}")
         print(f"scene {i + 1}/{a.scenes} (seed {seed}) -> {out}   elapsed {time.time() - t0:.0f} s", flush=True)
-        render_scene(seed, out, frames, res, a.spp, a.reference_spp, ref_frames, a.half, a.threads, a.layout)
+        render_scene(seed, out, frames, res, a.spp, a.reference_spp, ref_frames, a.half, a.threads, a.layout,
+                     levels=tuple(a.levels.split(",")))
     return 0
 
 

@@ -58,48 +58,16 @@ pub fn separable(p: &Plane, k: &[f32]) -> Plane {
     out
 }
 
-/// Box mean over a (2r+1)² window with edge repeat, O(1) per pixel (running sums).
+/// Box mean of every channel over a (2r+1)² window with edge repeat, O(1) per pixel.
 pub fn box_mean(p: &Plane, r: usize) -> Plane {
-    let n = (2 * r + 1) as f32;
-    let k = vec![1.0 / n; 2 * r + 1];
-    if r <= 3 {
-        return separable(p, &k);
-    }
     let (w, h) = (p.width(), p.height());
-    let ri = r as isize;
-    let run = |src: &[f32], len: usize, stride: usize, dst: &mut [f32], dstride: usize| {
-        let at = |i: isize| src[(i.clamp(0, len as isize - 1) as usize) * stride];
-        let mut acc: f32 = (-ri..=ri).map(at).sum();
-        for i in 0..len {
-            dst[i * dstride] = acc / n;
-            acc += at(i as isize + ri + 1) - at(i as isize - ri);
-        }
-    };
-    let mut tmp = Plane::zeros(w, h, p.channels());
-    tmp.data_mut()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(row, dst)| {
-            run(&p.data()[row * w..(row + 1) * w], w, 1, dst, 1);
-        });
-    // columns: transpose-free, one column at a time per channel
+    let area = ((2 * r + 1) * (2 * r + 1)) as f32;
     let mut out = Plane::zeros(w, h, p.channels());
+    let mut tmp = vec![0f32; w * h];
     for c in 0..p.channels() {
-        let src = tmp.channel(c);
-        let cols: Vec<Vec<f32>> = (0..w)
-            .into_par_iter()
-            .map(|x| {
-                let mut col = vec![0.0; h];
-                run(&src[x..], h, w, &mut col, 1);
-                col
-            })
-            .collect();
         let dst = out.channel_mut(c);
-        for (x, col) in cols.iter().enumerate() {
-            for (y, v) in col.iter().enumerate() {
-                dst[y * w + x] = *v;
-            }
-        }
+        box_sum_into(p.channel(c), w, h, r, &mut tmp, dst);
+        dst.par_iter_mut().for_each(|v| *v /= area);
     }
     out
 }

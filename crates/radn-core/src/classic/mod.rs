@@ -2,8 +2,10 @@
 //! motion, robust temporal averaging, joint non-local means and a guided filter. It makes the
 //! pseudo-references for training (paper section 6) and is `radn denoise --method classic`.
 
+pub mod guided;
 pub mod image_ops;
 pub mod nlm;
+pub mod pipeline;
 pub mod refine;
 pub mod temporal;
 pub mod tvl1;

@@ -88,7 +88,7 @@ pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
                             d += (diff * diff - (vp + vp.min(vq))) / (1e-10 + k2 * (vp + vq));
                         }
                         drow[x] = d / 3.0;
-                        frow[x] = feature_weight(guide, i, j, n, p);
+                        frow[x] = feature_energy(guide, i, j, n, p);
                     }
                 });
             box_sum_into(&dist, w, h, p.patch_radius, &mut tmp, &mut patch);
@@ -103,11 +103,9 @@ pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
                 .enumerate()
                 .for_each(|(y, (drow, prow))| {
                     for x in 0..w {
-                        let wt = if inside(x, y) {
-                            (-(prow[x] / patch_area).max(0.0)).exp().min(wf[y * w + x])
-                        } else {
-                            0.0
-                        };
+                        // min(colour weight, feature weight) = exp(−max(colour energy, feature energy))
+                        let e = (prow[x] / patch_area).max(0.0).max(wf[y * w + x]);
+                        let wt = if inside(x, y) { (-e).exp() } else { 0.0 };
                         prow[x] = wt; // reuse as the weight buffer
                         drow[x] += wt;
                     }
@@ -142,8 +140,9 @@ pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
     num
 }
 
+/// The feature term's exponent: the feature weight is `exp(−energy)`.
 #[inline]
-fn feature_weight(g: &NlmGuide, i: usize, j: usize, n: usize, p: &NlmParams) -> f32 {
+fn feature_energy(g: &NlmGuide, i: usize, j: usize, n: usize, p: &NlmParams) -> f32 {
     let mut e = 0.0;
     if let Some(a) = g.albedo {
         let a = a.data();
@@ -166,7 +165,7 @@ fn feature_weight(g: &NlmGuide, i: usize, j: usize, n: usize, p: &NlmParams) -> 
         let d = (a - b) / a.abs().max(b.abs()).max(1e-6);
         e += d * d / (p.depth_sigma * p.depth_sigma);
     }
-    (-e).exp()
+    e
 }
 
 #[cfg(test)]

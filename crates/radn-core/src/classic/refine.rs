@@ -15,8 +15,10 @@ use crate::plane::Plane;
 pub struct RefineParams {
     /// The flow solver's parameters.
     pub tvl1: TvL1Params,
-    /// Compute the flow at this fraction of the resolution (speed; the result is upsampled).
-    pub scale: f32,
+    /// Compute the flow at most at this many pixels (the image is scaled down to fit and the
+    /// flow upsampled): reflections and shadows move smoothly, and the flow's cost would
+    /// otherwise dominate the denoiser on large frames.
+    pub max_pixels: usize,
     /// Gaussian prefilter (pixels) of the tonemapped luminance the flow is computed on, so
     /// render noise does not drive it.
     pub prefilter_sigma: f32,
@@ -30,7 +32,7 @@ impl Default for RefineParams {
     fn default() -> Self {
         Self {
             tvl1: TvL1Params::default(),
-            scale: 0.5,
+            max_pixels: 250_000,
             prefilter_sigma: 1.0,
             accept_ratio: 0.6,
             min_change_px: 0.5,
@@ -67,9 +69,10 @@ pub fn refine_motion(
     let (w, h) = (this.width(), this.height());
     let i0 = flow_image(this, p.prefilter_sigma);
     let i1 = flow_image(other, p.prefilter_sigma);
+    let scale = (p.max_pixels as f32 / (w * h) as f32).sqrt().min(1.0);
     let (sw, sh) = (
-        ((w as f32 * p.scale).round() as usize).max(8),
-        ((h as f32 * p.scale).round() as usize).max(8),
+        ((w as f32 * scale).round() as usize).max(8),
+        ((h as f32 * scale).round() as usize).max(8),
     );
     let flow = if (sw, sh) == (w, h) {
         tvl1_flow(&i0, &i1, renderer, &p.tvl1)
@@ -155,10 +158,7 @@ mod tests {
         let this = scene(w, h, 3.0);
         let prev = scene(w, h, 0.0);
         let renderer = Plane::zeros(w, h, 2);
-        let p = RefineParams {
-            scale: 1.0,
-            ..RefineParams::default()
-        };
+        let p = RefineParams::default();
         let r = refine_motion(&this, &prev, &renderer, &p);
         // deep inside the square the refined flow points 3 px left (to where it was)
         let mut ok = 0;

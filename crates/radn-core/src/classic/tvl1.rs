@@ -151,10 +151,12 @@ fn solve_level(i0: &Plane, i1: &Plane, mut u: Plane, p: &TvL1Params) -> Plane {
         let rho_c: Vec<f32> = (0..n)
             .map(|i| i1w[i] - gx[i] * u0.data()[i] - gy[i] * u0.data()[n + i] - i0.data()[i])
             .collect();
+        let mut div1 = vec![0f32; n];
+        let mut div2 = vec![0f32; n];
         for _ in 0..p.iterations {
             // thresholding step: v, then u = v + θ div p
-            let div1 = divergence(&dual[0], &dual[1], w, h);
-            let div2 = divergence(&dual[2], &dual[3], w, h);
+            divergence_into(&dual[0], &dual[1], w, h, &mut div1);
+            divergence_into(&dual[2], &dual[3], w, h, &mut div2);
             let (ux, uy) = u.data_mut().split_at_mut(n);
             let change: f64 = ux
                 .par_iter_mut()
@@ -212,6 +214,11 @@ fn solve_level(i0: &Plane, i1: &Plane, mut u: Plane, p: &TvL1Params) -> Plane {
 /// Divergence (backward differences) of a dual field, the adjoint of the forward gradient.
 fn divergence(px: &[f32], py: &[f32], w: usize, h: usize) -> Vec<f32> {
     let mut out = vec![0f32; w * h];
+    divergence_into(px, py, w, h, &mut out);
+    out
+}
+
+fn divergence_into(px: &[f32], py: &[f32], w: usize, h: usize, out: &mut [f32]) {
     out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
         for (x, o) in row.iter_mut().enumerate() {
             let i = y * w + x;
@@ -232,7 +239,6 @@ fn divergence(px: &[f32], py: &[f32], w: usize, h: usize) -> Vec<f32> {
             *o = dx + dy;
         }
     });
-    out
 }
 
 /// Wedel's structure–texture decomposition: the texture part `I − α·ROF(I)`. Removes slowly

@@ -4,6 +4,8 @@ use std::time::Instant;
 
 use anyhow::{anyhow, Result};
 use radn_core::align::{align_window, AlignParams};
+use radn_core::classic::pipeline::{denoise_window, ClassicParams};
+use radn_core::classic::refine::{refine_motion, RefineParams};
 use radn_core::frame::{Frame, Requirements};
 
 use crate::input::{sequence_files, ChannelArgs};
@@ -17,6 +19,9 @@ pub struct Args {
     /// Repetitions (the median is reported).
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
+    /// Also time the classic denoiser's stages.
+    #[arg(long)]
+    pub classic: bool,
     #[command(flatten)]
     pub channels: ChannelArgs,
 }
@@ -34,6 +39,8 @@ pub fn run(a: Args) -> Result<()> {
     let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
     let mut read_times = Vec::new();
     let mut align_times = Vec::new();
+    let mut refine_times = Vec::new();
+    let mut classic_times = Vec::new();
     let mut frames: Vec<Frame> = Vec::new();
     for _ in 0..a.repeat.max(1) {
         let t = Instant::now();
@@ -47,6 +54,29 @@ pub fn run(a: Args) -> Result<()> {
         let w = align_window(&window, &AlignParams::default());
         align_times.push(t.elapsed().as_secs_f64());
         std::hint::black_box(w);
+        if a.classic {
+            // one frame's refinement: its motion towards both neighbours
+            let c = &frames[2];
+            let t = Instant::now();
+            for (other, m) in [(&frames[1], &c.motion_prev), (&frames[3], &c.motion_next)] {
+                if let Some(m) = m {
+                    std::hint::black_box(refine_motion(
+                        &c.color,
+                        &other.color,
+                        m,
+                        &RefineParams::default(),
+                    ));
+                }
+            }
+            refine_times.push(t.elapsed().as_secs_f64());
+            let p = ClassicParams {
+                refine: None,
+                ..ClassicParams::default()
+            };
+            let t = Instant::now();
+            std::hint::black_box(denoise_window(&window, &p));
+            classic_times.push(t.elapsed().as_secs_f64());
+        }
     }
     let mp = (frames[0].width() * frames[0].height()) as f64 / 1e6;
     let med = |v: &mut Vec<f64>| {
@@ -71,5 +101,16 @@ pub fn run(a: Args) -> Result<()> {
         al * 1e3,
         mp / al
     );
+    if a.classic {
+        let (rf, cl) = (med(&mut refine_times), med(&mut classic_times));
+        println!("classic refine:   {:8.1} ms   {:7.2} MP/s (TV-L1 towards both neighbours, once per frame)", rf * 1e3, mp / rf);
+        println!("classic window:   {:8.1} ms   {:7.2} MP/s (align, temporal average, NLM, guided filter)", cl * 1e3, mp / cl);
+        let total = r / 5.0 + rf + cl;
+        println!(
+            "classic per frame:{:8.1} ms   {:7.2} MP/s (decode + refine + window)",
+            total * 1e3,
+            mp / total
+        );
+    }
     Ok(())
 }

@@ -1,0 +1,170 @@
+//! Denoising whole sequences: every frame decoded once and kept while windows need it, frames
+//! whose output exists skipped (so a killed run resumes), results written into a copy of the
+//! input file that keeps every other layer, through a temporary file renamed into place.
+
+use std::collections::BTreeMap;
+use std::path::PathBuf;
+
+use crate::align::window_indices;
+use crate::error::{Error, Result};
+use crate::exr_file::{ExrFile, SampleKind};
+use crate::frame::{Frame, FrameReader};
+use crate::output::{ensure_not_input, ensure_writable_dir};
+use crate::plane::Plane;
+
+/// The denoised buffers of one frame.
+#[derive(Clone, Debug)]
+pub struct Denoised {
+    /// Beauty RGB.
+    pub color: Plane,
+    /// Alpha, if the input has alpha.
+    pub alpha: Option<Plane>,
+    /// AOVs in the reader's order.
+    pub aovs: Vec<Plane>,
+}
+
+/// A method that denoises the centre frame of an aligned window of frames.
+pub trait WindowDenoiser: Sync {
+    /// Frames on each side of the centre (2 for the paper's 5-frame window).
+    fn radius(&self) -> usize;
+    /// Per-frame preparation with the frame's neighbours (e.g. motion refinement); runs once per
+    /// frame before any window uses it.
+    fn prepare(&self, _frame: &mut Frame, _prev: Option<&Frame>, _next: Option<&Frame>) {}
+    /// Whether `prepare` needs the neighbours (so they are decoded one frame further out).
+    fn prepare_needs_neighbours(&self) -> bool {
+        false
+    }
+    /// Denoises `window[radius]`; `None` marks frames beyond the sequence ends.
+    fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised>;
+}
+
+/// One sequence to denoise.
+pub struct SequenceJob {
+    /// Input frames in order: (frame number, path).
+    pub inputs: Vec<(i64, PathBuf)>,
+    /// Output path for each input frame.
+    pub outputs: Vec<PathBuf>,
+    /// How frames are read.
+    pub reader: FrameReader,
+    /// Recompute frames whose output already exists.
+    pub overwrite: bool,
+}
+
+/// What a run did.
+#[derive(Clone, Debug, Default)]
+pub struct JobReport {
+    /// Frames denoised and written.
+    pub written: usize,
+    /// Frames skipped because their output existed.
+    pub skipped: usize,
+    /// NaN/Inf samples repaired in the inputs.
+    pub repaired: usize,
+}
+
+impl SequenceJob {
+    /// Checks every output before any work: none may be an input, every folder must be writable.
+    pub fn validate(&self) -> Result<()> {
+        let inputs: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
+        for out in &self.outputs {
+            ensure_not_input(out, &inputs)?;
+        }
+        let mut dirs: Vec<PathBuf> = self
+            .outputs
+            .iter()
+            .filter_map(|p| p.parent().map(|d| d.join("x")))
+            .collect();
+        dirs.dedup();
+        for d in dirs {
+            ensure_writable_dir(&d)?;
+        }
+        Ok(())
+    }
+
+    /// Runs the job; `progress` is called after each frame with (done, total).
+    pub fn run(
+        &self,
+        method: &dyn WindowDenoiser,
+        mut progress: impl FnMut(usize, usize),
+    ) -> Result<JobReport> {
+        self.validate()?;
+        let n = self.inputs.len();
+        let r = method.radius();
+        let reach = if method.prepare_needs_neighbours() {
+            r + 1
+        } else {
+            r
+        };
+        let mut report = JobReport::default();
+        let mut raw: BTreeMap<usize, (Frame, ExrFile)> = BTreeMap::new();
+        let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
+        let mut size: Option<(usize, usize)> = None;
+        for pos in 0..n {
+            if !self.overwrite && self.outputs[pos].exists() {
+                report.skipped += 1;
+                progress(pos + 1, n);
+                continue;
+            }
+            // decode what this window needs, once
+            for k in pos.saturating_sub(reach)..(pos + reach + 1).min(n) {
+                if let std::collections::btree_map::Entry::Vacant(e) = raw.entry(k) {
+                    let (f, file) = self.reader.read(&self.inputs[k].1)?;
+                    let (w, h) = *size.get_or_insert((f.width(), f.height()));
+                    f.ensure_size(w, h)?;
+                    report.repaired += f.repaired;
+                    e.insert((f, file));
+                }
+            }
+            for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
+                if !prepared.contains_key(&k) {
+                    let mut f = raw[&k].0.clone();
+                    let prev = k.checked_sub(1).and_then(|j| raw.get(&j)).map(|x| &x.0);
+                    let next = raw.get(&(k + 1)).map(|x| &x.0);
+                    method.prepare(&mut f, prev, next);
+                    prepared.insert(k, f);
+                }
+            }
+            let idx = window_indices(pos, n, r);
+            let window: Vec<Option<&Frame>> =
+                idx.iter().map(|i| i.map(|i| &prepared[&i])).collect();
+            let out = method.denoise(&window)?;
+            let (frame, file) = &raw[&pos];
+            write_result(file.clone(), frame, &out, &self.outputs[pos])?;
+            report.written += 1;
+            // forget frames no later window needs
+            raw.retain(|&k, _| k + reach > pos);
+            prepared.retain(|&k, _| k + r > pos);
+            progress(pos + 1, n);
+        }
+        Ok(report)
+    }
+}
+
+/// Writes denoised buffers over the input's own channels, keeping everything else.
+pub fn write_result(
+    mut file: ExrFile,
+    frame: &Frame,
+    out: &Denoised,
+    path: &std::path::Path,
+) -> Result<()> {
+    if out.color.width() != frame.width() || out.color.height() != frame.height() {
+        return Err(Error::Incompatible {
+            what: "denoised result".into(),
+            a_w: out.color.width(),
+            a_h: out.color.height(),
+            b_w: frame.width(),
+            b_h: frame.height(),
+        });
+    }
+    for (c, name) in frame.color_channels.iter().enumerate() {
+        file.set_channel(name, out.color.channel(c), SampleKind::F32);
+    }
+    if let (Some(a), Some(name)) = (&out.alpha, &frame.alpha_channel) {
+        file.set_channel(name, a.channel(0), SampleKind::F32);
+    }
+    for (aov, plane) in frame.aovs.iter().zip(&out.aovs) {
+        for (c, name) in aov.channels.iter().enumerate() {
+            file.set_channel(name, plane.channel(c), SampleKind::F32);
+        }
+    }
+    file.write_atomic(path)
+}
