@@ -270,6 +270,17 @@ impl ExrFile {
         self.reindex();
     }
 
+    /// Changes the storage type of an existing channel (values converted); false if absent.
+    pub fn convert_channel(&mut self, name: &str, kind: SampleKind) -> bool {
+        let Some(r) = self.index.get(name).copied() else {
+            return false;
+        };
+        let data = self.channel_f32(name).expect("indexed channel exists");
+        self.image.layer_data[r.layer].channel_data.list[r.index].sample_data =
+            samples_of_kind(&data, kind);
+        true
+    }
+
     /// A short description of each part for `radn inspect`: name, compression, block layout.
     pub fn parts(&self) -> Vec<PartInfo> {
         self.image

@@ -48,6 +48,8 @@ pub struct SequenceJob {
     pub reader: FrameReader,
     /// Recompute frames whose output already exists.
     pub overwrite: bool,
+    /// Storage type of the denoised channels (None: the input channel's own type).
+    pub output_kind: Option<SampleKind>,
 }
 
 /// What a run did.
@@ -115,12 +117,12 @@ impl SequenceJob {
                 }
             }
             for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
-                if !prepared.contains_key(&k) {
+                if let std::collections::btree_map::Entry::Vacant(e) = prepared.entry(k) {
                     let mut f = raw[&k].0.clone();
                     let prev = k.checked_sub(1).and_then(|j| raw.get(&j)).map(|x| &x.0);
                     let next = raw.get(&(k + 1)).map(|x| &x.0);
                     method.prepare(&mut f, prev, next);
-                    prepared.insert(k, f);
+                    e.insert(f);
                 }
             }
             let idx = window_indices(pos, n, r);
@@ -128,7 +130,13 @@ impl SequenceJob {
                 idx.iter().map(|i| i.map(|i| &prepared[&i])).collect();
             let out = method.denoise(&window)?;
             let (frame, file) = &raw[&pos];
-            write_result(file.clone(), frame, &out, &self.outputs[pos])?;
+            write_result(
+                file.clone(),
+                frame,
+                &out,
+                &self.outputs[pos],
+                self.output_kind,
+            )?;
             report.written += 1;
             // forget frames no later window needs
             raw.retain(|&k, _| k + reach > pos);
@@ -139,12 +147,14 @@ impl SequenceJob {
     }
 }
 
-/// Writes denoised buffers over the input's own channels, keeping everything else.
+/// Writes denoised buffers over the input's own channels, keeping everything else; `kind`
+/// overrides the storage type of the denoised channels.
 pub fn write_result(
     mut file: ExrFile,
     frame: &Frame,
     out: &Denoised,
     path: &std::path::Path,
+    kind: Option<SampleKind>,
 ) -> Result<()> {
     if out.color.width() != frame.width() || out.color.height() != frame.height() {
         return Err(Error::Incompatible {
@@ -155,15 +165,21 @@ pub fn write_result(
             b_h: frame.height(),
         });
     }
+    let mut put = |name: &str, data: &[f32]| {
+        if let Some(k) = kind {
+            file.convert_channel(name, k);
+        }
+        file.set_channel(name, data, kind.unwrap_or(SampleKind::F32));
+    };
     for (c, name) in frame.color_channels.iter().enumerate() {
-        file.set_channel(name, out.color.channel(c), SampleKind::F32);
+        put(name, out.color.channel(c));
     }
     if let (Some(a), Some(name)) = (&out.alpha, &frame.alpha_channel) {
-        file.set_channel(name, a.channel(0), SampleKind::F32);
+        put(name, a.channel(0));
     }
     for (aov, plane) in frame.aovs.iter().zip(&out.aovs) {
         for (c, name) in aov.channels.iter().enumerate() {
-            file.set_channel(name, plane.channel(c), SampleKind::F32);
+            put(name, plane.channel(c));
         }
     }
     file.write_atomic(path)

@@ -32,10 +32,10 @@ fn read(level: &str, req: Requirements) -> Vec<Frame> {
 fn denoise(frames: &[Frame], radius: usize, p: &ClassicParams) -> Vec<Plane> {
     let mut refined: Vec<Frame> = frames.to_vec();
     if let Some(rp) = &p.refine {
-        for k in 0..frames.len() {
+        for (k, frame) in refined.iter_mut().enumerate() {
             let prev = k.checked_sub(1).map(|j| &frames[j]);
             refine_frame_motion(
-                &mut refined[k],
+                frame,
                 prev,
                 frames.get(k + 1),
                 rp,

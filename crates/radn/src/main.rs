@@ -30,6 +30,8 @@ enum Command {
     Warp(cmd::warp::Args),
     /// Compare a result sequence with a reference: PSNR, SSIM, relMSE, tMAE, tPSNR.
     Eval(cmd::eval::Args),
+    /// Make pseudo-references for a rendered dataset with the classic denoiser.
+    Pseudoref(cmd::pseudoref::Args),
     /// Measure read and warp throughput on a sequence.
     Bench(cmd::bench::Args),
 }
@@ -63,6 +65,7 @@ fn main() -> std::process::ExitCode {
         Command::Warp(a) => cmd::warp::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Bench(a) => cmd::bench::run(a),
+        Command::Pseudoref(a) => cmd::pseudoref::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

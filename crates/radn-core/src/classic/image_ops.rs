@@ -166,42 +166,6 @@ pub fn luminance(rgb: &Plane) -> Plane {
     Plane::from_vec(rgb.width(), rgb.height(), 1, v)
 }
 
-#[cfg(test)]
-mod tests {
-    use super::*;
-
-    #[test]
-    fn box_mean_matches_brute_force() {
-        let p = Plane::from_fn(23, 17, 2, |x, y, c| ((x * 7 + y * 3 + c * 5) % 11) as f32);
-        for r in [1usize, 5] {
-            let b = box_mean(&p, r);
-            for c in 0..2 {
-                for y in 0..17 {
-                    for x in 0..23 {
-                        let mut s = 0.0;
-                        for dy in -(r as isize)..=r as isize {
-                            for dx in -(r as isize)..=r as isize {
-                                let xx = (x as isize + dx).clamp(0, 22) as usize;
-                                let yy = (y as isize + dy).clamp(0, 16) as usize;
-                                s += p.get(xx, yy, c);
-                            }
-                        }
-                        let want = s / ((2 * r + 1) * (2 * r + 1)) as f32;
-                        assert!((b.get(x, y, c) - want).abs() < 1e-4, "r={r} ({x},{y})");
-                    }
-                }
-            }
-        }
-    }
-
-    #[test]
-    fn median_removes_an_outlier() {
-        let mut p = Plane::filled(5, 5, 1, 1.0);
-        p.set(2, 2, 0, 100.0);
-        assert_eq!(median3(&p).get(2, 2, 0), 1.0);
-    }
-}
-
 /// Box sum over a (2r+1)² window of a one-channel buffer (edge repeat), by running sums:
 /// the cost does not depend on `r`. Rows, then column chunks, run in parallel.
 pub fn box_sum_into(src: &[f32], w: usize, h: usize, r: usize, tmp: &mut [f32], out: &mut [f32]) {
@@ -246,5 +210,41 @@ pub fn box_sum_into(src: &[f32], w: usize, h: usize, r: usize, tmp: &mut [f32], 
         for y in 0..h {
             out[y * w + x0..y * w + x0 + cw].copy_from_slice(&block[y * cw..(y + 1) * cw]);
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn box_mean_matches_brute_force() {
+        let p = Plane::from_fn(23, 17, 2, |x, y, c| ((x * 7 + y * 3 + c * 5) % 11) as f32);
+        for r in [1usize, 5] {
+            let b = box_mean(&p, r);
+            for c in 0..2 {
+                for y in 0..17 {
+                    for x in 0..23 {
+                        let mut s = 0.0;
+                        for dy in -(r as isize)..=r as isize {
+                            for dx in -(r as isize)..=r as isize {
+                                let xx = (x as isize + dx).clamp(0, 22) as usize;
+                                let yy = (y as isize + dy).clamp(0, 16) as usize;
+                                s += p.get(xx, yy, c);
+                            }
+                        }
+                        let want = s / ((2 * r + 1) * (2 * r + 1)) as f32;
+                        assert!((b.get(x, y, c) - want).abs() < 1e-4, "r={r} ({x},{y})");
+                    }
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn median_removes_an_outlier() {
+        let mut p = Plane::filled(5, 5, 1, 1.0);
+        p.set(2, 2, 0, 100.0);
+        assert_eq!(median3(&p).get(2, 2, 0), 1.0);
     }
 }

@@ -187,8 +187,12 @@ pub fn denoise_window(window: &[Option<&Frame>], p: &ClassicParams) -> ClassicRe
     }
     let mut filtered = nlm(&guide, &signals, &p.nlm);
     if let (Some(gp), Some(feat)) = (&p.guided, features(albedo_f.as_ref(), normal_f.as_ref())) {
-        let refs: Vec<&Plane> = filtered.iter().collect();
-        filtered = guided_filter(&feat, &refs, gp);
+        // alpha keeps only the convex stages (temporal average, NLM), which cannot leave its
+        // range; the guided filter is a local regression and may overshoot at edges
+        let colour_and_aovs = 1 + d_aovs.len();
+        let refs: Vec<&Plane> = filtered[..colour_and_aovs].iter().collect();
+        let guided = guided_filter(&feat, &refs, gp);
+        filtered.splice(..colour_and_aovs, guided);
     }
     let remod = |mut x: Plane| {
         if let Some(s) = &scale {

@@ -17,6 +17,28 @@ pub enum Method {
     Classic,
 }
 
+/// Storage type of denoised channels.
+#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+pub enum Precision {
+    /// Whatever the input channel uses.
+    Same,
+    /// 16-bit float.
+    Half,
+    /// 32-bit float.
+    Float,
+}
+
+impl Precision {
+    /// The sample kind to force, if any.
+    pub fn kind(self) -> Option<radn_core::exr_file::SampleKind> {
+        match self {
+            Precision::Same => None,
+            Precision::Half => Some(radn_core::exr_file::SampleKind::F16),
+            Precision::Float => Some(radn_core::exr_file::SampleKind::F32),
+        }
+    }
+}
+
 /// Arguments of `radn denoise`.
 #[derive(clap::Args)]
 pub struct Args {
@@ -38,6 +60,18 @@ pub struct Args {
     /// Recompute frames whose output already exists (default: skip them, so a killed run resumes).
     #[arg(long)]
     pub overwrite: bool,
+    /// Storage of the denoised channels: the input's own type, half or float.
+    #[arg(long, value_enum, default_value = "same")]
+    pub output_precision: Precision,
+    #[command(flatten)]
+    pub classic: ClassicArgs,
+    #[command(flatten)]
+    pub channels: ChannelArgs,
+}
+
+/// Options of the classic (non-neural) denoiser.
+#[derive(clap::Args, Clone, Debug)]
+pub struct ClassicArgs {
     /// Frames on each side of the centre (2 = the paper's 5-frame window).
     #[arg(long, default_value_t = 2)]
     pub radius: usize,
@@ -59,26 +93,26 @@ pub struct Args {
     /// Classic: filter the beauty itself instead of beauty / albedo.
     #[arg(long)]
     pub no_demodulate: bool,
-    #[command(flatten)]
-    pub channels: ChannelArgs,
 }
 
-/// Builds the classic denoiser from the command-line options.
-pub fn classic_from(a: &Args) -> ClassicDenoiser {
-    let mut p = ClassicParams::default();
-    p.nlm.search_radius = a.search_radius;
-    p.nlm.patch_radius = a.patch_radius;
-    p.nlm.strength = a.strength;
-    if a.no_refine {
-        p.refine = None;
-    }
-    if a.no_guided {
-        p.guided = None;
-    }
-    p.demodulate = !a.no_demodulate;
-    ClassicDenoiser {
-        params: p,
-        radius: a.radius,
+impl ClassicArgs {
+    /// The classic denoiser these options describe.
+    pub fn denoiser(&self) -> ClassicDenoiser {
+        let mut p = ClassicParams::default();
+        p.nlm.search_radius = self.search_radius;
+        p.nlm.patch_radius = self.patch_radius;
+        p.nlm.strength = self.strength;
+        if self.no_refine {
+            p.refine = None;
+        }
+        if self.no_guided {
+            p.guided = None;
+        }
+        p.demodulate = !self.no_demodulate;
+        ClassicDenoiser {
+            params: p,
+            radius: self.radius,
+        }
     }
 }
 
@@ -100,9 +134,10 @@ pub fn run(a: Args) -> Result<()> {
         outputs,
         reader,
         overwrite: a.overwrite,
+        output_kind: a.output_precision.kind(),
     };
     let method = match a.method {
-        Method::Classic => classic_from(&a),
+        Method::Classic => a.classic.denoiser(),
     };
     let pb = crate::progress::frames(job.inputs.len() as u64, "denoising");
     let t = std::time::Instant::now();

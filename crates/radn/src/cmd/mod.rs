@@ -4,4 +4,5 @@ pub mod bench;
 pub mod denoise;
 pub mod eval;
 pub mod inspect;
+pub mod pseudoref;
 pub mod warp;

@@ -1,0 +1,103 @@
+//! `radn pseudoref`: pseudo-references for a whole rendered dataset (paper section 6), made by
+//! the classic denoiser from each scene's least noisy level.
+
+use std::path::{Path, PathBuf};
+
+use anyhow::{anyhow, Result};
+use radn_core::frame::Requirements;
+use radn_core::job::SequenceJob;
+use radn_core::sequence::SequencePattern;
+
+use super::denoise::ClassicArgs;
+use crate::input::ChannelArgs;
+
+/// Arguments of `radn pseudoref`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// A dataset folder (scenes in sub-folders) or a single scene folder, in the datagen layout
+    /// `<scene>/<level>/frame_####.exr`.
+    #[arg(long)]
+    pub data: PathBuf,
+    /// The level to denoise (the least noisy one).
+    #[arg(long, default_value = "high")]
+    pub level: String,
+    /// The level folder the pseudo-references are written to.
+    #[arg(long, default_value = "pseudo")]
+    pub out_level: String,
+    /// Recompute frames that already exist (default: skip them, so a killed run resumes).
+    #[arg(long)]
+    pub overwrite: bool,
+    #[command(flatten)]
+    pub classic: ClassicArgs,
+    #[command(flatten)]
+    pub channels: ChannelArgs,
+}
+
+/// The scene folders under `data` that have the given level.
+pub fn scenes(data: &Path, level: &str) -> Result<Vec<PathBuf>> {
+    if data.join(level).is_dir() {
+        return Ok(vec![data.to_path_buf()]);
+    }
+    let mut v: Vec<PathBuf> = std::fs::read_dir(data)
+        .map_err(|e| anyhow!("cannot list '{}': {e}", data.display()))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join(level).is_dir())
+        .collect();
+    v.sort();
+    if v.is_empty() {
+        return Err(anyhow!(
+            "'{}' holds no scene with a '{level}' folder",
+            data.display()
+        ));
+    }
+    Ok(v)
+}
+
+/// Makes the pseudo-references, scene by scene.
+pub fn run(a: Args) -> Result<()> {
+    let scenes = scenes(&a.data, &a.level)?;
+    let method = a.classic.denoiser();
+    let mut jobs = Vec::new();
+    for s in &scenes {
+        let input = SequencePattern::from_folder(&s.join(&a.level))?;
+        let frames = input.frames(None)?;
+        let out = SequencePattern::parse(
+            &s.join(&a.out_level)
+                .join("frame_####.exr")
+                .to_string_lossy(),
+        )?;
+        let inputs: Vec<(i64, PathBuf)> = frames.iter().map(|&f| (f, input.path(f))).collect();
+        let outputs = frames.iter().map(|&f| out.path(f)).collect();
+        let reader = a.channels.reader(&inputs[0].1, Requirements::DENOISE)?;
+        // pseudo-references are training targets: keep full precision
+        let output_kind = Some(radn_core::exr_file::SampleKind::F32);
+        jobs.push(SequenceJob {
+            inputs,
+            outputs,
+            reader,
+            overwrite: a.overwrite,
+            output_kind,
+        });
+    }
+    let total: usize = jobs.iter().map(|j| j.inputs.len()).sum();
+    let pb = crate::progress::frames(total as u64, "pseudo-refs");
+    let (mut written, mut skipped, mut base) = (0, 0, 0);
+    for (s, job) in scenes.iter().zip(&jobs) {
+        pb.set_message(
+            s.file_name()
+                .map(|n| n.to_string_lossy().into_owned())
+                .unwrap_or_default(),
+        );
+        let r = job.run(&method, |done, _| pb.set_position((base + done) as u64))?;
+        written += r.written;
+        skipped += r.skipped;
+        base += job.inputs.len();
+    }
+    pb.finish_and_clear();
+    println!(
+        "{} scenes: {written} pseudo-references written, {skipped} already there",
+        scenes.len()
+    );
+    Ok(())
+}
