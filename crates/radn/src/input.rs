@@ -49,7 +49,7 @@ impl ChannelArgs {
                     file.channel_names().join(", ")
                 )
             })?;
-            tracing::info!(preset = %m.name, "detected channel preset");
+            tracing::debug!(preset = %m.name, "detected channel preset");
             m
         } else {
             ChannelMapping::builtin(&self.preset).ok_or_else(|| {
