@@ -1,1 +1,17 @@
+//! radn-nn: the Robust Average network (paper sections 3 and 4), its baselines, kernel
+//! application, losses and training, on burn.
 
+pub mod backbone;
+pub mod config;
+pub mod error;
+pub mod input;
+pub mod kernel;
+pub mod layers;
+pub mod loss;
+pub mod model;
+pub mod ra_block;
+pub mod store;
+
+pub use config::NetConfig;
+pub use error::{NnError, Result};
+pub use model::{Denoiser, Prediction};

@@ -1,0 +1,210 @@
+//! Per-frame backbones: frames are a batch axis (weights shared across the window); the only
+//! connections between frames are the Robust Average blocks.
+
+use burn::module::Module;
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::relu;
+use burn::tensor::module::{avg_pool2d, interpolate};
+use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
+use burn::tensor::{Device, Tensor};
+
+use crate::config::{Backbone, INPUT_CHANNELS};
+use crate::layers::{conv3, DoubleConv, ResBlock};
+use crate::ra_block::RobustAverage;
+
+/// The paper's ResNet (Fig. 1), with RA blocks after chosen residual blocks and skip
+/// connections from chosen RA blocks to the head.
+#[derive(Module, Debug)]
+pub struct ResNet {
+    input: Conv2d,
+    blocks: Vec<ResBlock>,
+    ra: Vec<RobustAverage>,
+    ra_after: Vec<usize>,
+    skips_from: Vec<usize>,
+    width: usize,
+}
+
+impl ResNet {
+    /// Builds the network; `frames = 0` builds it without RA blocks.
+    pub fn new(
+        blocks: usize,
+        width: usize,
+        ra_after: &[usize],
+        skips_from: &[usize],
+        frames: usize,
+        device: &Device,
+    ) -> Self {
+        Self {
+            input: conv3(INPUT_CHANNELS, width, device),
+            blocks: (0..blocks).map(|_| ResBlock::new(width, device)).collect(),
+            ra: ra_after
+                .iter()
+                .map(|_| RobustAverage::new(width, frames, device))
+                .collect(),
+            ra_after: ra_after.to_vec(),
+            skips_from: skips_from.to_vec(),
+            width,
+        }
+    }
+
+    /// Channels of the features handed to the head.
+    pub fn out_channels(&self) -> usize {
+        self.width * (1 + self.skips_from.len())
+    }
+
+    /// `[batch · frames, INPUT_CHANNELS, H, W]` → head features.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut h = relu(self.input.forward(x));
+        let mut skips = Vec::new();
+        let mut next_ra = 0;
+        for (i, block) in self.blocks.iter().enumerate() {
+            h = block.forward(h);
+            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i + 1 {
+                h = self.ra[next_ra].forward(h);
+                if self.skips_from.contains(&(next_ra + 1)) {
+                    skips.push(h.clone());
+                }
+                next_ra += 1;
+            }
+        }
+        skips.push(h);
+        Tensor::cat(skips, 1)
+    }
+}
+
+/// A UNet with an RA block after the encoder block of every scale.
+#[derive(Module, Debug)]
+pub struct UNet {
+    down: Vec<DoubleConv>,
+    ra: Vec<RobustAverage>,
+    up: Vec<DoubleConv>,
+    widths: Vec<usize>,
+}
+
+impl UNet {
+    /// Builds the network over `frames` frames (`0`: without RA blocks).
+    pub fn new(widths: &[usize], frames: usize, device: &Device) -> Self {
+        let mut down = Vec::new();
+        let mut cin = INPUT_CHANNELS;
+        for &w in widths {
+            down.push(DoubleConv::new(cin, w, device));
+            cin = w;
+        }
+        let ra = if frames > 0 {
+            widths
+                .iter()
+                .map(|&w| RobustAverage::new(w, frames, device))
+                .collect()
+        } else {
+            Vec::new()
+        };
+        // decoder: from scale s+1 up to s, concatenating the encoder's features of scale s
+        let up = (0..widths.len() - 1)
+            .rev()
+            .map(|s| DoubleConv::new(widths[s + 1] + widths[s], widths[s], device))
+            .collect();
+        Self {
+            down,
+            ra,
+            up,
+            widths: widths.to_vec(),
+        }
+    }
+
+    /// Channels of the features handed to the head.
+    pub fn out_channels(&self) -> usize {
+        self.widths[0]
+    }
+
+    /// Input sizes must be divisible by 2^(scales − 1).
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut skips = Vec::new();
+        let mut h = x;
+        for (s, block) in self.down.iter().enumerate() {
+            if s > 0 {
+                h = avg_pool2d(h, burn::tensor::ops::AvgPoolOptions::new([2, 2]));
+            }
+            h = block.forward(h);
+            if let Some(ra) = self.ra.get(s) {
+                h = ra.forward(h);
+            }
+            skips.push(h.clone());
+        }
+        for (k, block) in self.up.iter().enumerate() {
+            let s = self.widths.len() - 2 - k;
+            let [_, _, hh, ww] = skips[s].dims();
+            let up = interpolate(
+                h,
+                InterpolateOptions::new(InterpolateMode::Bilinear).with_output_size([hh, ww]),
+            );
+            h = block.forward(Tensor::cat(vec![up, skips[s].clone()], 1));
+        }
+        h
+    }
+}
+
+/// Either backbone.
+// one value per model, built once: the variants' size difference does not matter
+#[allow(clippy::large_enum_variant)]
+#[derive(Module, Debug)]
+pub enum FrameNet {
+    /// ResNet.
+    ResNet(ResNet),
+    /// UNet.
+    UNet(UNet),
+}
+
+impl FrameNet {
+    /// Builds the configured backbone; `with_ra = false` leaves the RA blocks out.
+    pub fn new(cfg: &Backbone, frames: usize, with_ra: bool, device: &Device) -> Self {
+        let f = if with_ra { frames } else { 0 };
+        match cfg {
+            Backbone::Resnet {
+                blocks,
+                width,
+                ra_after,
+                skips_from,
+            } => {
+                let (ra, skips): (&[usize], &[usize]) = if with_ra {
+                    (ra_after, skips_from)
+                } else {
+                    (&[], &[])
+                };
+                FrameNet::ResNet(ResNet::new(*blocks, *width, ra, skips, f, device))
+            }
+            Backbone::Unet { widths } => FrameNet::UNet(UNet::new(widths, f, device)),
+        }
+    }
+
+    /// The RA blocks, in order.
+    pub fn ra_blocks(&self) -> Vec<&RobustAverage> {
+        match self {
+            FrameNet::ResNet(n) => n.ra.iter().collect(),
+            FrameNet::UNet(n) => n.ra.iter().collect(),
+        }
+    }
+
+    /// Channels of the head's input.
+    pub fn out_channels(&self) -> usize {
+        match self {
+            FrameNet::ResNet(n) => n.out_channels(),
+            FrameNet::UNet(n) => n.out_channels(),
+        }
+    }
+
+    /// The size multiple inputs must have (UNets downsample).
+    pub fn size_multiple(&self) -> usize {
+        match self {
+            FrameNet::ResNet(_) => 1,
+            FrameNet::UNet(n) => 1 << (n.widths.len() - 1),
+        }
+    }
+
+    /// Per-frame features.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        match self {
+            FrameNet::ResNet(n) => n.forward(x),
+            FrameNet::UNet(n) => n.forward(x),
+        }
+    }
+}

@@ -1,0 +1,214 @@
+//! Network configuration: plain TOML, the same format for built-in presets and user files,
+//! stored inside every model file so that the file alone is enough to run it.
+
+use serde::{Deserialize, Serialize};
+
+use crate::error::{NnError, Result};
+
+/// Which network family.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum Arch {
+    /// The paper's network: a per-frame backbone with Robust Average blocks, 5×5×T kernels.
+    Ra,
+    /// Baseline of Vogels et al. 2018: spatial kernels per frame, then a temporal combination.
+    Tkpcn,
+    /// Baseline: 5×5 kernels on the centre frame only.
+    Spatial,
+}
+
+/// The kernel activation (paper section 4).
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum Activation {
+    /// η_t (paper eq. 3) on the raw outputs: `max(0, w − t) / Σ max(0, w − t)`.
+    Eta,
+    /// Softmax, then η_t on the normalised weights.
+    SoftmaxEta,
+}
+
+/// The per-frame backbone.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(tag = "type", rename_all = "lowercase")]
+pub enum Backbone {
+    /// A ResNet without down- or upsampling (paper Fig. 1).
+    Resnet {
+        /// Residual blocks (two 3×3 convolutions each).
+        blocks: usize,
+        /// Channels of every convolution.
+        width: usize,
+        /// Insert an RA block after these residual blocks (1-based).
+        ra_after: Vec<usize>,
+        /// Feed the outputs of these RA blocks (1-based among the RA blocks) to the head.
+        skips_from: Vec<usize>,
+    },
+    /// A UNet; an RA block follows the encoder block of every scale.
+    Unet {
+        /// Channels per scale, finest first.
+        widths: Vec<usize>,
+    },
+}
+
+/// A whole network description.
+#[derive(Clone, Debug, Deserialize, Serialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct NetConfig {
+    /// Name shown in logs and model cards.
+    pub name: String,
+    /// Network family.
+    pub arch: Arch,
+    /// Frames in the window (odd).
+    pub frames: usize,
+    /// Spatial kernel size (odd).
+    pub kernel_size: usize,
+    /// Kernel activation.
+    pub activation: Activation,
+    /// Default threshold t; `None` means the paper's default 1/(2K).
+    #[serde(default)]
+    pub threshold: Option<f32>,
+    /// The backbone.
+    pub backbone: Backbone,
+}
+
+const PRESETS: &[(&str, &str)] = &[
+    ("paper", include_str!("../presets/paper.toml")),
+    ("small", include_str!("../presets/small.toml")),
+    ("unet", include_str!("../presets/unet.toml")),
+    ("tkpcn", include_str!("../presets/tkpcn.toml")),
+    ("spatial", include_str!("../presets/spatial.toml")),
+];
+
+/// Number of input channels per frame: log colour (3), albedo (3), normal (3), depth (1),
+/// confidence (1).
+pub const INPUT_CHANNELS: usize = 11;
+
+impl NetConfig {
+    /// Names of the built-in presets.
+    pub fn preset_names() -> Vec<&'static str> {
+        PRESETS.iter().map(|(n, _)| *n).collect()
+    }
+
+    /// A built-in preset.
+    pub fn preset(name: &str) -> Result<NetConfig> {
+        let text = PRESETS
+            .iter()
+            .find(|(n, _)| *n == name)
+            .map(|(_, t)| *t)
+            .ok_or_else(|| {
+                NnError::Config(format!(
+                    "unknown preset '{name}'; known: {}",
+                    Self::preset_names().join(", ")
+                ))
+            })?;
+        Self::parse(text)
+    }
+
+    /// Parses and checks a TOML description.
+    pub fn parse(text: &str) -> Result<NetConfig> {
+        let c: NetConfig = toml::from_str(text).map_err(|e| NnError::Config(e.to_string()))?;
+        c.validate()?;
+        Ok(c)
+    }
+
+    /// The TOML form (embedded in model files).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("configs serialise")
+    }
+
+    /// Checks the numbers fit together.
+    pub fn validate(&self) -> Result<()> {
+        let bad = |m: String| Err(NnError::Config(m));
+        if self.frames.is_multiple_of(2) {
+            return bad(format!("frames must be odd, got {}", self.frames));
+        }
+        if self.kernel_size.is_multiple_of(2) {
+            return bad(format!("kernel_size must be odd, got {}", self.kernel_size));
+        }
+        match &self.backbone {
+            Backbone::Resnet {
+                blocks,
+                width,
+                ra_after,
+                skips_from,
+            } => {
+                if *width == 0 || *blocks == 0 {
+                    return bad("resnet needs blocks > 0 and width > 0".into());
+                }
+                if let Some(b) = ra_after.iter().find(|&&b| b == 0 || b > *blocks) {
+                    return bad(format!("ra_after names block {b}, but there are {blocks}"));
+                }
+                if let Some(s) = skips_from.iter().find(|&&s| s == 0 || s > ra_after.len()) {
+                    return bad(format!(
+                        "skips_from names RA block {s}, but there are {}",
+                        ra_after.len()
+                    ));
+                }
+                if self.arch != Arch::Ra && !ra_after.is_empty() {
+                    return bad("only arch = \"ra\" has RA blocks".into());
+                }
+            }
+            Backbone::Unet { widths } => {
+                if widths.is_empty() || widths.contains(&0) {
+                    return bad("unet needs at least one non-zero width".into());
+                }
+            }
+        }
+        if let Some(t) = self.threshold {
+            if !(0.0..1.0 / self.kernel_taps() as f32).contains(&t) {
+                return bad(format!(
+                    "threshold {t} must be in [0, 1/K) with K = {}",
+                    self.kernel_taps()
+                ));
+            }
+        }
+        Ok(())
+    }
+
+    /// K: weights per output pixel (kernel taps over all frames the kernel covers).
+    pub fn kernel_taps(&self) -> usize {
+        let frames = if self.arch == Arch::Spatial {
+            1
+        } else {
+            self.frames
+        };
+        frames * self.kernel_size * self.kernel_size
+    }
+
+    /// The threshold used when the caller gives none: the config's, else 1/(2K).
+    pub fn default_threshold(&self) -> f32 {
+        self.threshold
+            .unwrap_or(1.0 / (2.0 * self.kernel_taps() as f32))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn every_preset_parses_and_round_trips() {
+        for n in NetConfig::preset_names() {
+            let c = NetConfig::preset(n).unwrap();
+            assert_eq!(NetConfig::parse(&c.to_toml()).unwrap(), c, "{n}");
+        }
+        assert_eq!(
+            NetConfig::preset("paper").unwrap().default_threshold(),
+            1.0 / 250.0
+        );
+    }
+
+    #[test]
+    fn inconsistent_configs_are_refused() {
+        let mut c = NetConfig::preset("small").unwrap();
+        c.frames = 4;
+        assert!(c.validate().is_err());
+        let t = NetConfig::preset("small")
+            .unwrap()
+            .to_toml()
+            .replace("skips_from = [1, 2]", "skips_from = [9]");
+        assert!(NetConfig::parse(&t)
+            .unwrap_err()
+            .to_string()
+            .contains("skips_from"));
+    }
+}

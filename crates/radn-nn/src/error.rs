@@ -1,0 +1,23 @@
+//! Errors of `radn-nn`.
+
+use std::path::PathBuf;
+
+/// Result alias for `radn-nn`.
+pub type Result<T, E = NnError> = std::result::Result<T, E>;
+
+/// What can go wrong building, loading or running a network.
+#[derive(Debug, thiserror::Error)]
+pub enum NnError {
+    /// A network configuration is inconsistent.
+    #[error("invalid network configuration: {0}")]
+    Config(String),
+    /// A model file cannot be read or is not a radn model.
+    #[error("cannot load model '{path}': {detail}")]
+    Load { path: PathBuf, detail: String },
+    /// A model file cannot be written.
+    #[error("cannot save model '{path}': {detail}")]
+    Save { path: PathBuf, detail: String },
+    /// Errors from the frame side.
+    #[error(transparent)]
+    Core(#[from] radn_core::Error),
+}

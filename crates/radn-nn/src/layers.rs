@@ -1,0 +1,58 @@
+//! Small building blocks shared by the backbones.
+
+use burn::module::Module;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::PaddingConfig2d;
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor};
+
+/// A 3×3 convolution that keeps the image size.
+pub fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
+    Conv2dConfig::new([cin, cout], [3, 3])
+        .with_padding(PaddingConfig2d::Same)
+        .init(device)
+}
+
+/// A residual block: `x + conv(relu(conv(x)))`.
+#[derive(Module, Debug)]
+pub struct ResBlock {
+    a: Conv2d,
+    b: Conv2d,
+}
+
+impl ResBlock {
+    /// A block of the given width.
+    pub fn new(width: usize, device: &Device) -> Self {
+        Self {
+            a: conv3(width, width, device),
+            b: conv3(width, width, device),
+        }
+    }
+
+    /// Applies the block.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        x.clone() + self.b.forward(relu(self.a.forward(x)))
+    }
+}
+
+/// Two 3×3 convolutions with ReLUs (the UNet's per-scale block).
+#[derive(Module, Debug)]
+pub struct DoubleConv {
+    a: Conv2d,
+    b: Conv2d,
+}
+
+impl DoubleConv {
+    /// From `cin` to `cout` channels.
+    pub fn new(cin: usize, cout: usize, device: &Device) -> Self {
+        Self {
+            a: conv3(cin, cout, device),
+            b: conv3(cout, cout, device),
+        }
+    }
+
+    /// Applies the block.
+    pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        relu(self.b.forward(relu(self.a.forward(x))))
+    }
+}

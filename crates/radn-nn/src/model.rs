@@ -1,0 +1,315 @@
+//! The networks: the paper's RA network and the two baselines, behind one interface that
+//! predicts kernels for a window and applies them to any planes.
+
+use burn::module::{Module, Param};
+use burn::nn::conv::Conv2d;
+use burn::nn::Initializer;
+use burn::tensor::activation::{relu, softmax};
+use burn::tensor::{Device, Tensor};
+
+use crate::backbone::FrameNet;
+use crate::config::{Arch, NetConfig, INPUT_CHANNELS};
+use crate::kernel::{eta, Kernels};
+use crate::layers::conv3;
+
+/// A kernel head whose first kernels are close to a box filter: equal biases and weights so
+/// small that the raw outputs vary by ~1e-3 (well above the default threshold, so η passes
+/// gradient everywhere), but not zero (a zero head would block all gradient to the backbone).
+fn box_head(cin: usize, taps: usize, bias: f32, device: &Device) -> Conv2d {
+    let std = 1e-3 / ((cin * 9) as f64).sqrt();
+    let mut head = burn::nn::conv::Conv2dConfig::new([cin, taps], [3, 3])
+        .with_padding(burn::nn::PaddingConfig2d::Same)
+        .with_initializer(Initializer::Normal { mean: 0.0, std })
+        .init(device);
+    head.bias = Some(Param::from_tensor(Tensor::full([taps], bias, device)));
+    head
+}
+
+/// The paper's network: per-frame backbone with RA blocks, a per-frame head of k² weights,
+/// the frames' weights joined into one k×k×T kernel and activated together.
+#[derive(Module, Debug)]
+pub struct RaNet {
+    backbone: FrameNet,
+    head: Conv2d,
+}
+
+/// tKPCN (Vogels et al. 2018): per-frame spatial kernels, then a temporal kernel over the
+/// spatially denoised frames predicted from all frames' features. No RA blocks.
+#[derive(Module, Debug)]
+pub struct TKpcn {
+    backbone: FrameNet,
+    spatial_head: Conv2d,
+    temporal_a: Conv2d,
+    temporal_b: Conv2d,
+    temporal_head: Conv2d,
+}
+
+/// A spatial-only KPCN on the centre frame.
+#[derive(Module, Debug)]
+pub struct SpatialKpcn {
+    backbone: FrameNet,
+    head: Conv2d,
+}
+
+/// Any of the networks.
+// one value per model, built once: the variants' size difference does not matter
+#[allow(clippy::large_enum_variant)]
+#[derive(Module, Debug)]
+pub enum Network {
+    /// The RA network.
+    Ra(RaNet),
+    /// tKPCN.
+    Tkpcn(TKpcn),
+    /// Spatial KPCN.
+    Spatial(SpatialKpcn),
+}
+
+/// A network with its configuration: everything needed to denoise.
+#[derive(Debug, Clone)]
+pub struct Denoiser {
+    /// The trainable part.
+    pub net: Network,
+    /// Its description.
+    pub config: NetConfig,
+}
+
+/// Kernels predicted for a batch of windows.
+// one value per forward pass, holding tensor handles: its size does not matter
+#[allow(clippy::large_enum_variant)]
+#[derive(Clone, Debug)]
+pub enum Prediction {
+    /// One k×k×T kernel per pixel (RA network), or k×k on the centre frame (spatial: T = 1).
+    Single(Kernels),
+    /// tKPCN: spatial kernels per frame (`[B·T, k², H, W]`), then a temporal k×k×T kernel.
+    TwoStage {
+        /// Per-frame spatial kernels.
+        spatial: Kernels,
+        /// The temporal combination.
+        temporal: Kernels,
+    },
+}
+
+impl Denoiser {
+    /// A freshly initialised network.
+    pub fn new(config: NetConfig, device: &Device) -> Self {
+        let k2 = config.kernel_size * config.kernel_size;
+        let t = config.frames;
+        let net = match config.arch {
+            Arch::Ra => {
+                let backbone = FrameNet::new(&config.backbone, t, true, device);
+                // raw weights all 2/K: above the default threshold 1/(2K), so η gives a box
+                let head = box_head(
+                    backbone.out_channels(),
+                    k2,
+                    2.0 / config.kernel_taps() as f32,
+                    device,
+                );
+                Network::Ra(RaNet { backbone, head })
+            }
+            Arch::Tkpcn => {
+                let backbone = FrameNet::new(&config.backbone, t, false, device);
+                let c = backbone.out_channels();
+                Network::Tkpcn(TKpcn {
+                    spatial_head: box_head(c, k2, 0.0, device),
+                    temporal_a: conv3(t * c, c, device),
+                    temporal_b: conv3(c, c, device),
+                    temporal_head: box_head(c, t * k2, 2.0 / config.kernel_taps() as f32, device),
+                    backbone,
+                })
+            }
+            Arch::Spatial => {
+                let backbone = FrameNet::new(&config.backbone, t, false, device);
+                let head = box_head(
+                    backbone.out_channels(),
+                    k2,
+                    2.0 / config.kernel_taps() as f32,
+                    device,
+                );
+                Network::Spatial(SpatialKpcn { backbone, head })
+            }
+        };
+        Self { net, config }
+    }
+
+    /// The RA blocks of the network (none for the baselines).
+    pub fn ra_blocks(&self) -> Vec<&crate::ra_block::RobustAverage> {
+        match &self.net {
+            Network::Ra(n) => n.backbone.ra_blocks(),
+            _ => Vec::new(),
+        }
+    }
+
+    /// Trainable parameters.
+    pub fn num_params(&self) -> usize {
+        self.net.num_params()
+    }
+
+    /// The multiple that tile sizes must have.
+    pub fn size_multiple(&self) -> usize {
+        match &self.net {
+            Network::Ra(n) => n.backbone.size_multiple(),
+            Network::Tkpcn(n) => n.backbone.size_multiple(),
+            Network::Spatial(n) => n.backbone.size_multiple(),
+        }
+    }
+
+    /// Predicts kernels for windows `[B, T, INPUT_CHANNELS, H, W]` with threshold `t`.
+    pub fn predict(&self, input: Tensor<5>, t: f32) -> Prediction {
+        let [b, frames, c, h, w] = input.dims();
+        assert_eq!(
+            frames, self.config.frames,
+            "the window has {frames} frames, the network expects {}",
+            self.config.frames
+        );
+        assert_eq!(
+            c, INPUT_CHANNELS,
+            "expected {INPUT_CHANNELS} input channels"
+        );
+        let k = self.config.kernel_size;
+        let k2 = k * k;
+        let act = self.config.activation;
+        let centre = frames / 2;
+        match &self.net {
+            Network::Ra(n) => {
+                let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
+                let raw = n.head.forward(feats).reshape([b, frames * k2, h, w]);
+                let weights = eta(raw, t, act, centre * k2 + k2 / 2);
+                Prediction::Single(Kernels {
+                    weights,
+                    frames,
+                    size: k,
+                })
+            }
+            Network::Spatial(n) => {
+                let x = input.narrow(1, centre, 1).reshape([b, c, h, w]);
+                let raw = n.head.forward(n.backbone.forward(x));
+                Prediction::Single(Kernels {
+                    weights: eta(raw, t, act, k2 / 2),
+                    frames: 1,
+                    size: k,
+                })
+            }
+            Network::Tkpcn(n) => {
+                let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
+                let fc = feats.dims()[1];
+                let spatial = softmax(n.spatial_head.forward(feats.clone()), 1);
+                let joined = feats.reshape([b, frames * fc, h, w]);
+                let tfeat = relu(n.temporal_b.forward(relu(n.temporal_a.forward(joined))));
+                let raw = n.temporal_head.forward(tfeat);
+                let temporal = eta(raw, t, act, centre * k2 + k2 / 2);
+                Prediction::TwoStage {
+                    spatial: Kernels {
+                        weights: spatial,
+                        frames: 1,
+                        size: k,
+                    },
+                    temporal: Kernels {
+                        weights: temporal,
+                        frames,
+                        size: k,
+                    },
+                }
+            }
+        }
+    }
+}
+
+impl Prediction {
+    /// Applies the kernels to the window's values `[B, T, C, H, W]` (linear, warped).
+    pub fn apply(&self, values: Tensor<5>) -> Tensor<4> {
+        let [b, t, c, h, w] = values.dims();
+        match self {
+            Prediction::Single(k) if k.frames == 1 => k.apply(values.narrow(1, t / 2, 1)),
+            Prediction::Single(k) => k.apply(values),
+            Prediction::TwoStage { spatial, temporal } => {
+                let per_frame = spatial.apply(values.reshape([b * t, 1, c, h, w]));
+                temporal.apply(per_frame.reshape([b, t, c, h, w]))
+            }
+        }
+    }
+
+    /// The prediction restricted to a subset of the window's frames, renormalised (paper
+    /// section 5). `None` for a spatial network asked to do without its only frame.
+    pub fn subset(&self, mask: &[bool]) -> Option<Prediction> {
+        match self {
+            Prediction::Single(k) if k.frames == 1 => mask[mask.len() / 2].then(|| self.clone()),
+            Prediction::Single(k) => Some(Prediction::Single(k.subset(mask))),
+            Prediction::TwoStage { spatial, temporal } => Some(Prediction::TwoStage {
+                spatial: spatial.clone(),
+                temporal: temporal.subset(mask),
+            }),
+        }
+    }
+
+    /// Per-pixel weight of each window frame `[B, T, H, W]` (temporal utilisation).
+    pub fn frame_mass(&self, frames: usize) -> Tensor<4> {
+        match self {
+            Prediction::Single(k) if k.frames == 1 => {
+                let [b, _, h, w] = k.weights.dims();
+                let device = k.weights.device();
+                let mut v = vec![0.0f32; frames];
+                v[frames / 2] = 1.0;
+                Tensor::<1>::from_floats(v.as_slice(), &device)
+                    .reshape([1, frames, 1, 1])
+                    .expand([b, frames, h, w])
+            }
+            Prediction::Single(k) => k.frame_mass(),
+            Prediction::TwoStage { temporal, .. } => temporal.frame_mass(),
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+
+    fn window(b: usize, t: usize, h: usize, w: usize, device: &Device) -> Tensor<5> {
+        let n = b * t * INPUT_CHANNELS * h * w;
+        Tensor::from_data(
+            TensorData::new(
+                (0..n)
+                    .map(|i| ((i * 2654435761usize) % 1000) as f32 / 1000.0)
+                    .collect::<Vec<f32>>(),
+                [b, t, INPUT_CHANNELS, h, w],
+            ),
+            device,
+        )
+    }
+
+    #[test]
+    fn shapes_for_five_and_three_frames_and_every_family() {
+        let device = Device::flex();
+        for name in ["small", "unet", "tkpcn", "spatial"] {
+            for frames in [5usize, 3] {
+                let mut cfg = NetConfig::preset(name).unwrap();
+                cfg.frames = frames;
+                let d = Denoiser::new(cfg.clone(), &device);
+                let (h, w) = (16, 20);
+                let p = d.predict(window(2, frames, h, w, &device), cfg.default_threshold());
+                let values = Tensor::<5>::from_data(
+                    TensorData::new(vec![1.0f32; 2 * frames * 3 * h * w], [2, frames, 3, h, w]),
+                    &device,
+                );
+                let out = p.apply(values);
+                assert_eq!(out.dims(), [2, 3, h, w], "{name} T={frames}");
+                let mass = p.frame_mass(frames);
+                assert_eq!(mass.dims(), [2, frames, h, w]);
+                // the box-initialised kernels sum to 1 per pixel: a constant image stays constant
+                // (away from the zero-padded border)
+                let v = out.to_data().try_to_vec::<f32>().unwrap();
+                let centre = v[(h / 2) * w + w / 2];
+                assert!((centre - 1.0).abs() < 1e-4, "{name} T={frames}: {centre}");
+            }
+        }
+    }
+
+    #[test]
+    fn paper_preset_parameter_count() {
+        let d = Denoiser::new(NetConfig::preset("paper").unwrap(), &Device::flex());
+        // 24 residual blocks of two 80→80 3×3 convs, 6 RA blocks, input conv, head over
+        // 80·(1 + 4 skips) channels: see docs/benchmarks.md for the breakdown
+        let n = d.num_params();
+        assert!(n > 3_000_000 && n < 4_000_000, "{n}");
+    }
+}

@@ -1,0 +1,147 @@
+//! The Robust Average block (paper section 3, Fig. 2): for each frame of the window in turn,
+//! the robust average of the other frames' latent maps is blended into it with per-pixel
+//! weights predicted by a small convolution stack. Recurrent: each step sees the frames the
+//! earlier steps updated.
+
+use burn::module::{Module, Param};
+use burn::nn::conv::Conv2d;
+use burn::tensor::activation::{relu, sigmoid};
+use burn::tensor::{Device, Tensor};
+
+use crate::layers::conv3;
+
+/// Bias of the weight predictor at initialisation: sigmoid(−2) ≈ 0.12, so a new block starts
+/// close to the identity (a ResNet-friendly start) but passes gradient to its averaging path.
+const INITIAL_BIAS: f32 = -2.0;
+
+/// Robust Average block over `frames` latent maps.
+#[derive(Module, Debug)]
+pub struct RobustAverage {
+    hidden: Conv2d,
+    weight: Conv2d,
+    frames: usize,
+}
+
+impl RobustAverage {
+    /// A block for latent maps of `channels` channels over `frames` frames.
+    pub fn new(channels: usize, frames: usize, device: &Device) -> Self {
+        let hidden_channels = (channels / 2).max(8);
+        let mut weight = conv3(hidden_channels, 1, device);
+        weight.bias = Some(Param::from_tensor(Tensor::full([1], INITIAL_BIAS, device)));
+        Self {
+            hidden: conv3(2 * channels, hidden_channels, device),
+            weight,
+            frames,
+        }
+    }
+
+    /// Sets the bias of the weight predictor (a large negative value turns interpolation off:
+    /// the block is then the identity).
+    pub fn with_weight_bias(mut self, bias: f32) -> Self {
+        let device = self.weight.weight.val().device();
+        self.weight.bias = Some(Param::from_tensor(Tensor::full([1], bias, &device)));
+        self
+    }
+
+    /// The weight tensors of the block's convolutions (for inspecting gradients).
+    pub fn conv_weights(&self) -> Vec<Tensor<4>> {
+        vec![self.hidden.weight.val(), self.weight.weight.val()]
+    }
+
+    /// `h`: `[batch · frames, C, H, W]`, frames consecutive within each batch item.
+    pub fn forward(&self, h: Tensor<4>) -> Tensor<4> {
+        let [bt, c, hh, ww] = h.dims();
+        let t = self.frames;
+        let b = bt / t;
+        let h5: Tensor<5> = h.reshape([b, t, c, hh, ww]);
+        let mut frames: Vec<Tensor<4>> = (0..t)
+            .map(|i| h5.clone().narrow(1, i, 1).reshape([b, c, hh, ww]))
+            .collect();
+        for i in 0..t {
+            let others: Vec<Tensor<4>> = frames
+                .iter()
+                .enumerate()
+                .filter(|(j, _)| *j != i)
+                .map(|(_, f)| f.clone())
+                .collect();
+            let avg = robust_mean(others);
+            let w = sigmoid(
+                self.weight.forward(relu(
+                    self.hidden
+                        .forward(Tensor::cat(vec![frames[i].clone(), avg.clone()], 1)),
+                )),
+            );
+            let keep = w.clone().neg().add_scalar(1.0);
+            frames[i] = frames[i].clone() * keep + avg * w;
+        }
+        Tensor::stack::<5>(frames, 1).reshape([bt, c, hh, ww])
+    }
+}
+
+/// The robust average of paper eq. 1, elementwise over a list of maps: mean without the
+/// minimum and the maximum when there are at least three, the plain mean otherwise.
+pub fn robust_mean(maps: Vec<Tensor<4>>) -> Tensor<4> {
+    let n = maps.len();
+    let [b, c, h, w] = maps[0].dims();
+    let s: Tensor<5> = Tensor::stack(maps, 1);
+    let sum = s.clone().sum_dim(1);
+    let out = if n >= 3 {
+        (sum - s.clone().max_dim(1) - s.min_dim(1)) / (n - 2) as f32
+    } else {
+        sum / n as f32
+    };
+    out.reshape([b, c, h, w])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+
+    fn t4(v: Vec<f32>, shape: [usize; 4]) -> Tensor<4> {
+        Tensor::from_data(TensorData::new(v, shape), &Device::flex())
+    }
+
+    #[test]
+    fn robust_mean_matches_hand_computed_values_with_ties() {
+        // four maps of two pixels: pixel 0 = (1, 5, 3, 100) -> (5 + 3) / 2; pixel 1 ties (2, 2, 2, 7) -> 2
+        let maps = vec![
+            t4(vec![1.0, 2.0], [1, 1, 1, 2]),
+            t4(vec![5.0, 2.0], [1, 1, 1, 2]),
+            t4(vec![3.0, 2.0], [1, 1, 1, 2]),
+            t4(vec![100.0, 7.0], [1, 1, 1, 2]),
+        ];
+        let out = robust_mean(maps).to_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(out, vec![4.0, 2.0]);
+        // two maps: the plain mean
+        let out = robust_mean(vec![
+            t4(vec![1.0], [1, 1, 1, 1]),
+            t4(vec![3.0], [1, 1, 1, 1]),
+        ])
+        .to_data()
+        .try_to_vec::<f32>()
+        .unwrap();
+        assert_eq!(out, vec![2.0]);
+    }
+
+    #[test]
+    fn block_with_interpolation_switched_off_is_the_identity() {
+        let device = Device::flex();
+        for frames in [5usize, 3] {
+            let block = RobustAverage::new(8, frames, &device).with_weight_bias(-1.0e4);
+            let n = 2 * frames * 8 * 6 * 5;
+            let x = t4(
+                (0..n)
+                    .map(|i| ((i * 7919) % 113) as f32 / 50.0 - 1.0)
+                    .collect(),
+                [2 * frames, 8, 6, 5],
+            );
+            let y = block.forward(x.clone());
+            assert_eq!(y.dims(), [2 * frames, 8, 6, 5]);
+            assert_eq!(
+                y.to_data().try_to_vec::<f32>().unwrap(),
+                x.to_data().try_to_vec::<f32>().unwrap()
+            );
+        }
+    }
+}
