@@ -2,6 +2,7 @@
 //! application, losses and training, on burn.
 
 pub mod backbone;
+pub mod bench;
 pub mod config;
 pub mod error;
 pub mod input;
@@ -15,3 +16,6 @@ pub mod store;
 pub use config::NetConfig;
 pub use error::{NnError, Result};
 pub use model::{Denoiser, Prediction};
+
+/// The burn version radn-nn is built on, re-exported so callers use the same one.
+pub use burn;

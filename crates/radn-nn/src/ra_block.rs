@@ -15,9 +15,16 @@ use crate::layers::conv3;
 const INITIAL_BIAS: f32 = -2.0;
 
 /// Robust Average block over `frames` latent maps.
+///
+/// The weight predictor's first convolution over `[h_i, average]` is stored as its two halves:
+/// the `h_i` half runs once, batched over all frames (step i still sees the original `h_i`,
+/// since only earlier frames have been updated), and only the average's half runs per step.
+/// Same function as one convolution over the concatenation, at a fraction of the cost of
+/// batch-1 convolutions.
 #[derive(Module, Debug)]
 pub struct RobustAverage {
-    hidden: Conv2d,
+    hidden_self: Conv2d,
+    hidden_avg: Conv2d,
     weight: Conv2d,
     frames: usize,
 }
@@ -28,8 +35,13 @@ impl RobustAverage {
         let hidden_channels = (channels / 2).max(8);
         let mut weight = conv3(hidden_channels, 1, device);
         weight.bias = Some(Param::from_tensor(Tensor::full([1], INITIAL_BIAS, device)));
+        let hidden_avg = burn::nn::conv::Conv2dConfig::new([channels, hidden_channels], [3, 3])
+            .with_padding(burn::nn::PaddingConfig2d::Same)
+            .with_bias(false)
+            .init(device);
         Self {
-            hidden: conv3(2 * channels, hidden_channels, device),
+            hidden_self: conv3(channels, hidden_channels, device),
+            hidden_avg,
             weight,
             frames,
         }
@@ -45,7 +57,11 @@ impl RobustAverage {
 
     /// The weight tensors of the block's convolutions (for inspecting gradients).
     pub fn conv_weights(&self) -> Vec<Tensor<4>> {
-        vec![self.hidden.weight.val(), self.weight.weight.val()]
+        vec![
+            self.hidden_self.weight.val(),
+            self.hidden_avg.weight.val(),
+            self.weight.weight.val(),
+        ]
     }
 
     /// `h`: `[batch · frames, C, H, W]`, frames consecutive within each batch item.
@@ -53,6 +69,10 @@ impl RobustAverage {
         let [bt, c, hh, ww] = h.dims();
         let t = self.frames;
         let b = bt / t;
+        // the h_i half of the first predictor convolution, for every frame at once
+        let pre = self.hidden_self.forward(h.clone());
+        let hc = pre.dims()[1];
+        let pre: Tensor<5> = pre.reshape([b, t, hc, hh, ww]);
         let h5: Tensor<5> = h.reshape([b, t, c, hh, ww]);
         let mut frames: Vec<Tensor<4>> = (0..t)
             .map(|i| h5.clone().narrow(1, i, 1).reshape([b, c, hh, ww]))
@@ -65,11 +85,10 @@ impl RobustAverage {
                 .map(|(_, f)| f.clone())
                 .collect();
             let avg = robust_mean(others);
+            let pre_i = pre.clone().narrow(1, i, 1).reshape([b, hc, hh, ww]);
             let w = sigmoid(
-                self.weight.forward(relu(
-                    self.hidden
-                        .forward(Tensor::cat(vec![frames[i].clone(), avg.clone()], 1)),
-                )),
+                self.weight
+                    .forward(relu(pre_i + self.hidden_avg.forward(avg.clone()))),
             );
             let keep = w.clone().neg().add_scalar(1.0);
             frames[i] = frames[i].clone() * keep + avg * w;
@@ -80,17 +99,25 @@ impl RobustAverage {
 
 /// The robust average of paper eq. 1, elementwise over a list of maps: mean without the
 /// minimum and the maximum when there are at least three, the plain mean otherwise.
+///
+/// Folds with elementwise `max_pair`/`min_pair` rather than stacking and reducing over a new
+/// axis: the same values, but a cheap elementwise backward pass (this is the hot path of
+/// every RA block).
 pub fn robust_mean(maps: Vec<Tensor<4>>) -> Tensor<4> {
     let n = maps.len();
-    let [b, c, h, w] = maps[0].dims();
-    let s: Tensor<5> = Tensor::stack(maps, 1);
-    let sum = s.clone().sum_dim(1);
-    let out = if n >= 3 {
-        (sum - s.clone().max_dim(1) - s.min_dim(1)) / (n - 2) as f32
+    let mut it = maps.into_iter();
+    let first = it.next().expect("at least one map");
+    let (mut sum, mut hi, mut lo) = (first.clone(), first.clone(), first);
+    for m in it {
+        sum = sum + m.clone();
+        hi = hi.max_pair(m.clone());
+        lo = lo.min_pair(m);
+    }
+    if n >= 3 {
+        (sum - hi - lo) / (n - 2) as f32
     } else {
         sum / n as f32
-    };
-    out.reshape([b, c, h, w])
+    }
 }
 
 #[cfg(test)]

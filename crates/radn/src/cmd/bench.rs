@@ -14,8 +14,19 @@ use crate::input::{sequence_files, ChannelArgs};
 #[derive(clap::Args)]
 pub struct Args {
     /// Input sequence (pattern or folder) with at least 5 frames.
-    #[arg(short, long)]
-    pub input: String,
+    #[arg(short, long, required_unless_present = "network")]
+    pub input: Option<String>,
+    /// Instead: time training steps of a network — a preset (small, paper, unet, tkpcn,
+    /// spatial) or a TOML file — on one tile, next to a bare 3×3 conv stack of the same width
+    /// and depth.
+    #[arg(long)]
+    pub network: Option<String>,
+    /// Tile size for --network.
+    #[arg(long, default_value_t = 128)]
+    pub tile: usize,
+    /// Tiles per training step for --network.
+    #[arg(long, default_value_t = 1)]
+    pub batch: usize,
     /// Repetitions (the median is reported).
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
@@ -26,13 +37,19 @@ pub struct Args {
     pub channels: ChannelArgs,
 }
 
-/// Times decoding and alignment; prints megapixels per second.
+/// Times decoding and alignment (or a network); prints throughput.
 pub fn run(a: Args) -> Result<()> {
-    let files = sequence_files(&a.input, None)?;
+    if let Some(preset) = &a.network {
+        return network(preset, a.tile, a.batch, a.repeat);
+    }
+    let input = a
+        .input
+        .as_deref()
+        .expect("clap requires --input without --network");
+    let files = sequence_files(input, None)?;
     if files.len() < 5 {
         return Err(anyhow!(
-            "'{}' has {} frames; the benchmark needs 5",
-            a.input,
+            "'{input}' has {} frames; the benchmark needs 5",
             files.len()
         ));
     }
@@ -110,6 +127,53 @@ pub fn run(a: Args) -> Result<()> {
             "classic per frame:{:8.1} ms   {:7.2} MP/s (decode + refine + window)",
             total * 1e3,
             mp / total
+        );
+    }
+    Ok(())
+}
+
+/// Times a network preset's training step on one tile and a bare conv stack of the same shape.
+fn network(preset: &str, tile: usize, batch: usize, steps: usize) -> Result<()> {
+    use radn_nn::bench::{time_conv_stack, time_network};
+    use radn_nn::config::Backbone;
+    let cfg = if std::path::Path::new(preset).is_file() {
+        radn_nn::NetConfig::parse(&std::fs::read_to_string(preset)?)?
+    } else {
+        radn_nn::NetConfig::preset(preset)?
+    };
+    let device = radn_nn::burn::tensor::Device::flex().autodiff();
+    let params = radn_nn::Denoiser::new(cfg.clone(), &device).num_params();
+    let net = time_network(&cfg, tile, batch, steps.max(1), &device);
+    println!(
+        "network '{preset}': {params} parameters, {} threads",
+        rayon::current_num_threads()
+    );
+    println!(
+        "  training step (fwd+bwd+Adam), {batch} x {tile}x{tile} tile x {} frames: {:.0} ms ({:.0} ms per tile), {:.1} GFLOP/s ({:.2} GFLOP forward)",
+        cfg.frames,
+        net.ms,
+        net.ms / batch as f64,
+        net.gflops(),
+        net.forward_flops / 1e9
+    );
+    if let Backbone::Resnet { blocks, width, .. } = &cfg.backbone {
+        let stack = time_conv_stack(
+            *width,
+            2 * blocks,
+            batch * cfg.frames,
+            tile,
+            steps.max(1),
+            &device,
+        );
+        println!(
+            "  bare 3x3 conv stack ({} convs at width {width}, same tile and frames): {:.0} ms, {:.1} GFLOP/s",
+            2 * blocks,
+            stack.ms,
+            stack.gflops()
+        );
+        println!(
+            "  network / bare stack throughput: {:.2}",
+            net.gflops() / stack.gflops()
         );
     }
     Ok(())

@@ -1,0 +1,178 @@
+//! Training-step throughput of a network and of a bare 3×3 convolution stack of the same width
+//! and depth, measured the same way: how much the RA blocks and kernel application cost.
+
+use std::time::Instant;
+
+use burn::module::Module;
+use burn::nn::conv::Conv2d;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Distribution, Tensor};
+
+use crate::config::{Arch, Backbone, NetConfig, INPUT_CHANNELS};
+use crate::layers::conv3;
+use crate::loss::smape;
+use crate::model::Denoiser;
+
+/// One measurement.
+#[derive(Clone, Debug)]
+pub struct StepTiming {
+    /// Median milliseconds per step (forward + backward + Adam) on one batch.
+    pub ms: f64,
+    /// Forward FLOPs of the measured computation per batch (multiply-adds count 2).
+    pub forward_flops: f64,
+}
+
+impl StepTiming {
+    /// Achieved GFLOP/s, counting a training step as 3× the forward FLOPs.
+    pub fn gflops(&self) -> f64 {
+        3.0 * self.forward_flops / (self.ms * 1e-3) / 1e9
+    }
+}
+
+/// Forward FLOPs of a network configuration on a `frames`-frame window of `h × w` pixels.
+pub fn forward_flops(cfg: &NetConfig, h: usize, w: usize) -> f64 {
+    let px = (h * w) as f64;
+    let conv = |cin: usize, cout: usize| 2.0 * (cin * cout * 9) as f64 * px;
+    let k2 = (cfg.kernel_size * cfg.kernel_size) as f64;
+    let t = cfg.frames as f64;
+    match &cfg.backbone {
+        Backbone::Resnet {
+            blocks,
+            width,
+            ra_after,
+            skips_from,
+        } => {
+            let wd = *width;
+            let per_frame_backbone = conv(INPUT_CHANNELS, wd) + *blocks as f64 * 2.0 * conv(wd, wd);
+            // each RA block runs its predictor once per frame, on [h_i, average] (2·width channels)
+            let hidden = (wd / 2).max(8);
+            let ra = ra_after.len() as f64 * (conv(2 * wd, hidden) + conv(hidden, 1));
+            let head_in = wd * (1 + skips_from.len());
+            match cfg.arch {
+                Arch::Ra => {
+                    t * (per_frame_backbone + ra + conv(head_in, k2 as usize))
+                        + 2.0 * t * k2 * 3.0 * px
+                }
+                Arch::Spatial => per_frame_backbone + conv(wd, k2 as usize) + 2.0 * k2 * 3.0 * px,
+                Arch::Tkpcn => {
+                    t * (per_frame_backbone + conv(wd, k2 as usize))
+                        + conv(cfg.frames * wd, wd)
+                        + conv(wd, wd)
+                        + conv(wd, cfg.frames * k2 as usize)
+                        + 2.0 * 2.0 * t * k2 * 3.0 * px
+                }
+            }
+        }
+        Backbone::Unet { widths } => {
+            // encoder and decoder double convs at shrinking resolution (approximate)
+            let mut f = 0.0;
+            let mut cin = INPUT_CHANNELS;
+            for (s, &wd) in widths.iter().enumerate() {
+                let scale = 1.0 / (4f64.powi(s as i32));
+                f += scale * (conv(cin, wd) + conv(wd, wd));
+                if s > 0 {
+                    f += (scale * 4.0)
+                        * (conv(wd + widths[s - 1], widths[s - 1])
+                            + conv(widths[s - 1], widths[s - 1]));
+                }
+                cin = wd;
+            }
+            t * (f + conv(widths[0], k2 as usize)) + 2.0 * t * k2 * 3.0 * px
+        }
+    }
+}
+
+fn median(mut v: Vec<f64>) -> f64 {
+    v.sort_by(f64::total_cmp);
+    v[v.len() / 2]
+}
+
+/// Times training steps of a network on batches of random `tile × tile` windows.
+pub fn time_network(
+    cfg: &NetConfig,
+    tile: usize,
+    batch: usize,
+    steps: usize,
+    device: &Device,
+) -> StepTiming {
+    let mut d = Denoiser::new(cfg.clone(), device);
+    let t = cfg.frames;
+    let x = Tensor::<5>::random(
+        [batch, t, INPUT_CHANNELS, tile, tile],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let v = Tensor::<5>::random(
+        [batch, t, 3, tile, tile],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let y = Tensor::<4>::random(
+        [batch, 3, tile, tile],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let mut optim = AdamConfig::new().init();
+    let thr = cfg.default_threshold();
+    let mut times = Vec::new();
+    for i in 0..steps + 1 {
+        let start = Instant::now();
+        let loss = smape(d.predict(x.clone(), thr).apply(v.clone()), y.clone());
+        let grads = GradientsParams::from_grads(loss.backward(), &d.net);
+        d.net = optim.step(1e-4, d.net, grads);
+        if i > 0 {
+            times.push(start.elapsed().as_secs_f64() * 1e3); // first step warms up
+        }
+    }
+    StepTiming {
+        ms: median(times),
+        forward_flops: batch as f64 * forward_flops(cfg, tile, tile),
+    }
+}
+
+/// A bare stack of `convs` 3×3 convolutions at `width` channels.
+#[derive(Module, Debug)]
+struct Stack {
+    convs: Vec<Conv2d>,
+}
+
+/// Times training steps of a bare conv stack on `frames` maps of `tile × tile`: the ceiling
+/// the network's convolutions could reach.
+pub fn time_conv_stack(
+    width: usize,
+    convs: usize,
+    frames: usize,
+    tile: usize,
+    steps: usize,
+    device: &Device,
+) -> StepTiming {
+    let mut s = Stack {
+        convs: (0..convs).map(|_| conv3(width, width, device)).collect(),
+    };
+    let x = Tensor::<4>::random(
+        [frames, width, tile, tile],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let mut optim = AdamConfig::new().init();
+    let mut times = Vec::new();
+    for i in 0..steps + 1 {
+        let start = Instant::now();
+        let mut h = x.clone();
+        for c in &s.convs {
+            h = relu(c.forward(h));
+        }
+        let loss = h.mean();
+        let grads = GradientsParams::from_grads(loss.backward(), &s);
+        s = optim.step(1e-4, s, grads);
+        if i > 0 {
+            times.push(start.elapsed().as_secs_f64() * 1e3);
+        }
+    }
+    let flops = frames as f64 * convs as f64 * 2.0 * (width * width * 9 * tile * tile) as f64;
+    StepTiming {
+        ms: median(times),
+        forward_flops: flops,
+    }
+}
