@@ -5,7 +5,7 @@ use rayon::prelude::*;
 
 use crate::confidence::{confidence, ConfidenceParams, Guides};
 use crate::frame::Frame;
-use crate::motion::{bilinear, compose, invert, on_screen, round_trip_error};
+use crate::motion::{compose, invert, on_screen, round_trip_error};
 use crate::plane::Plane;
 use crate::warp::{mix_with_centre, warp_plane};
 
@@ -256,18 +256,11 @@ fn step_validity(valid: &Plane, landed: &Plane, w: usize, h: usize) -> Plane {
 
 /// `acc(x) + hop_err(x + flow(x))`: accumulates a per-hop error along the path.
 fn add_sampled(acc: &Plane, hop_err: &Plane, flow: &Plane) -> Plane {
-    let (w, h) = (acc.width(), acc.height());
-    let mut out = Plane::zeros(w, h, 1);
+    let mut out = warp_plane(hop_err, flow);
     out.data_mut()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                let px = x as f32 + flow.get(x, y, 0);
-                let py = y as f32 + flow.get(x, y, 1);
-                *o = acc.get(x, y, 0) + bilinear(hop_err, 0, px, py);
-            }
-        });
+        .par_iter_mut()
+        .zip(acc.data())
+        .for_each(|(v, a)| *v += a);
     out
 }
 

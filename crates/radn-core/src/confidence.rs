@@ -178,28 +178,7 @@ fn normal_term(a: &Plane, b: &Plane, i: usize, n: usize, p: &ConfidenceParams) -
 
 /// 3×3 box filter with edge repeat.
 pub fn box3(p: &Plane) -> Plane {
-    let (w, h) = (p.width(), p.height());
-    let mut out = Plane::zeros(w, h, p.channels());
-    out.data_mut()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(row, dst)| {
-            let c = row / h;
-            let y = row % h;
-            let ch = p.channel(c);
-            for (x, d) in dst.iter_mut().enumerate() {
-                let mut s = 0.0;
-                for dy in [-1isize, 0, 1] {
-                    let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-                    for dx in [-1isize, 0, 1] {
-                        let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                        s += ch[yy * w + xx];
-                    }
-                }
-                *d = s / 9.0;
-            }
-        });
-    out
+    crate::image_ops::box_mean(p, 1)
 }
 
 #[cfg(test)]

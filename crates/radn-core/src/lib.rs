@@ -11,6 +11,7 @@ pub mod error;
 pub mod exr_file;
 pub mod frame;
 pub mod hygiene;
+pub mod image_ops;
 pub mod mapping;
 pub mod metrics;
 pub mod motion;

@@ -113,36 +113,9 @@ pub fn ssim(result: &Plane, reference: &Plane) -> Result<f64> {
     Ok(total / a.channels() as f64)
 }
 
+/// The SSIM window: Gaussian σ = 1.5 (truncated at 3σ ≈ the usual 11×11).
 fn gaussian_blur(src: &[f32], w: usize, h: usize) -> Vec<f32> {
-    const R: isize = 5;
-    let k: Vec<f32> = (-R..=R)
-        .map(|i| (-(i * i) as f32 / (2.0 * 1.5 * 1.5)).exp())
-        .collect();
-    let norm: f32 = k.iter().sum();
-    let k: Vec<f32> = k.iter().map(|v| v / norm).collect();
-    let mut tmp = vec![0.0f32; w * h];
-    tmp.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let mut s = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let xx = (x as isize + j as isize - R).clamp(0, w as isize - 1) as usize;
-                s += kv * src[y * w + xx];
-            }
-            *o = s;
-        }
-    });
-    let mut out = vec![0.0f32; w * h];
-    out.par_chunks_mut(w).enumerate().for_each(|(y, row)| {
-        for (x, o) in row.iter_mut().enumerate() {
-            let mut s = 0.0;
-            for (j, kv) in k.iter().enumerate() {
-                let yy = (y as isize + j as isize - R).clamp(0, h as isize - 1) as usize;
-                s += kv * tmp[yy * w + x];
-            }
-            *o = s;
-        }
-    });
-    out
+    crate::image_ops::gaussian(&Plane::from_vec(w, h, 1, src.to_vec()), 1.5).into_vec()
 }
 
 /// Temporal stability of one frame pair: the error of the result's frame-to-frame change

@@ -4,7 +4,7 @@
 
 use rayon::prelude::*;
 
-use super::image_ops::box_mean;
+use crate::image_ops::box_mean;
 use crate::plane::Plane;
 
 /// Guided filter options.

@@ -3,7 +3,6 @@
 //! pseudo-references for training (paper section 6) and is `radn denoise --method classic`.
 
 pub mod guided;
-pub mod image_ops;
 pub mod nlm;
 pub mod pipeline;
 pub mod refine;

@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use super::image_ops::box_sum_into;
+use crate::image_ops::box_sum_into;
 use crate::plane::Plane;
 
 /// NLM options.

@@ -6,13 +6,13 @@
 use rayon::prelude::*;
 
 use super::guided::{guided_filter, GuidedParams};
-use super::image_ops::box_mean;
 use super::nlm::{nlm, NlmGuide, NlmParams};
 use super::refine::{refine_motion, RefineParams};
 use super::temporal::{apply_weights, robust_weights, temporal_variance};
 use crate::align::{align_window, AlignParams};
 use crate::confidence::box3;
 use crate::frame::Frame;
+use crate::image_ops::box_mean;
 use crate::motion::invert;
 use crate::plane::Plane;
 

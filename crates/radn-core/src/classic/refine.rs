@@ -4,11 +4,11 @@
 
 use rayon::prelude::*;
 
-use super::image_ops::{box_mean, downsample, gaussian, luminance, resample};
 use super::tvl1::{tvl1_flow, TvL1Params};
+use crate::image_ops::{box_mean, downsample, gaussian, luminance, resample};
 use crate::metrics::tonemap;
-use crate::motion::bilinear;
 use crate::plane::Plane;
+use crate::warp::warp_plane;
 
 /// Options of the refinement.
 #[derive(Clone, Copy, Debug)]
@@ -119,18 +119,12 @@ fn scale2(u: &Plane, sx: f32, sy: f32) -> Plane {
 
 /// |i1(x + u(x)) − i0(x)|.
 fn residual(i0: &Plane, i1: &Plane, u: &Plane) -> Plane {
-    let (w, h) = (i0.width(), i0.height());
-    let mut out = Plane::zeros(w, h, 1);
-    out.data_mut()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(y, row)| {
-            for (x, o) in row.iter_mut().enumerate() {
-                let v = bilinear(i1, 0, x as f32 + u.get(x, y, 0), y as f32 + u.get(x, y, 1));
-                *o = (v - i0.get(x, y, 0)).abs();
-            }
-        });
-    out
+    let mut r = warp_plane(i1, u);
+    r.data_mut()
+        .par_iter_mut()
+        .zip(i0.data())
+        .for_each(|(v, a)| *v = (*v - a).abs());
+    r
 }
 
 #[cfg(test)]

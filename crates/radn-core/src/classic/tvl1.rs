@@ -5,7 +5,7 @@
 
 use rayon::prelude::*;
 
-use super::image_ops::{downsample, gradient, median3, resample};
+use crate::image_ops::{downsample, gradient, median3, resample};
 use crate::motion::bilinear;
 use crate::plane::Plane;
 
@@ -186,19 +186,7 @@ fn solve_level(i0: &Plane, i1: &Plane, mut u: Plane, p: &TvL1Params) -> Plane {
                 let uc = u.channel(comp);
                 let (pa, pb) = dual.split_at_mut(k + 1);
                 let (px, py) = (&mut pa[k], &mut pb[0]);
-                px.par_chunks_mut(w)
-                    .zip(py.par_chunks_mut(w))
-                    .enumerate()
-                    .for_each(|(y, (rx, ry))| {
-                        for x in 0..w {
-                            let i = y * w + x;
-                            let fx = if x + 1 < w { uc[i + 1] - uc[i] } else { 0.0 };
-                            let fy = if y + 1 < h { uc[i + w] - uc[i] } else { 0.0 };
-                            let norm = 1.0 + taut * (fx * fx + fy * fy).sqrt();
-                            rx[x] = (rx[x] + taut * fx) / norm;
-                            ry[x] = (ry[x] + taut * fy) / norm;
-                        }
-                    });
+                project_dual(px, py, uc, w, h, taut);
             }
             if (change / n as f64) < p.epsilon as f64 {
                 break;
@@ -254,6 +242,24 @@ pub fn structure_texture(img: &Plane, alpha: f32) -> Plane {
     Plane::from_vec(img.width(), img.height(), 1, t)
 }
 
+/// One step of dual ascent with projection, shared by the flow and ROF solvers:
+/// `p ← (p + τ∇v) / (1 + τ|∇v|)` with forward differences (0 at the far edges).
+fn project_dual(px: &mut [f32], py: &mut [f32], v: &[f32], w: usize, h: usize, tau: f32) {
+    px.par_chunks_mut(w)
+        .zip(py.par_chunks_mut(w))
+        .enumerate()
+        .for_each(|(y, (rx, ry))| {
+            for x in 0..w {
+                let i = y * w + x;
+                let gx = if x + 1 < w { v[i + 1] - v[i] } else { 0.0 };
+                let gy = if y + 1 < h { v[i + w] - v[i] } else { 0.0 };
+                let norm = 1.0 + tau * (gx * gx + gy * gy).sqrt();
+                rx[x] = (rx[x] + tau * gx) / norm;
+                ry[x] = (ry[x] + tau * gy) / norm;
+            }
+        });
+}
+
 /// Rudin–Osher–Fatemi denoising by Chambolle's projection algorithm.
 fn rof(f: &Plane, theta: f32, iterations: usize) -> Plane {
     let (w, h) = (f.width(), f.height());
@@ -265,19 +271,7 @@ fn rof(f: &Plane, theta: f32, iterations: usize) -> Plane {
     for _ in 0..iterations {
         let div = divergence(&px, &py, w, h);
         let v: Vec<f32> = (0..n).map(|i| div[i] - fd[i] / theta).collect();
-        px.par_chunks_mut(w)
-            .zip(py.par_chunks_mut(w))
-            .enumerate()
-            .for_each(|(y, (rx, ry))| {
-                for x in 0..w {
-                    let i = y * w + x;
-                    let gx = if x + 1 < w { v[i + 1] - v[i] } else { 0.0 };
-                    let gy = if y + 1 < h { v[i + w] - v[i] } else { 0.0 };
-                    let norm = 1.0 + tau * (gx * gx + gy * gy).sqrt();
-                    rx[x] = (rx[x] + tau * gx) / norm;
-                    ry[x] = (ry[x] + tau * gy) / norm;
-                }
-            });
+        project_dual(&mut px, &mut py, &v, w, h, tau);
     }
     let div = divergence(&px, &py, w, h);
     Plane::from_vec(w, h, 1, (0..n).map(|i| fd[i] - theta * div[i]).collect())

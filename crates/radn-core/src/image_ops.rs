@@ -1,5 +1,5 @@
-//! Small single-channel image operations shared by the classic denoiser: blur, pyramid
-//! resampling, gradients, median filtering, box sums.
+//! Image filters shared by alignment, metrics and the classic denoiser: Gaussian and box
+//! blurs, pyramid resampling, gradients, median filtering.
 
 use rayon::prelude::*;
 
