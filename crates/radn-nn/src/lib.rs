@@ -4,14 +4,17 @@
 pub mod backbone;
 pub mod bench;
 pub mod config;
+pub mod dataset;
 pub mod error;
 pub mod input;
 pub mod kernel;
 pub mod layers;
 pub mod loss;
 pub mod model;
+pub mod objective;
 pub mod ra_block;
 pub mod store;
+pub mod train;
 
 pub use config::NetConfig;
 pub use error::{NnError, Result};

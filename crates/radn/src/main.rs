@@ -30,6 +30,10 @@ enum Command {
     Warp(cmd::warp::Args),
     /// Compare a result sequence with a reference: PSNR, SSIM, relMSE, tMAE, tPSNR.
     Eval(cmd::eval::Args),
+    /// Cut training tiles from rendered sequences at several noise levels.
+    Prepare(cmd::prepare::Args),
+    /// Train a network on prepared tiles.
+    Train(cmd::train::Args),
     /// Make pseudo-references for a rendered dataset with the classic denoiser.
     Pseudoref(cmd::pseudoref::Args),
     /// Measure read and warp throughput on a sequence.
@@ -66,6 +70,8 @@ fn main() -> std::process::ExitCode {
         Command::Eval(a) => cmd::eval::run(a),
         Command::Bench(a) => cmd::bench::run(a),
         Command::Pseudoref(a) => cmd::pseudoref::run(a),
+        Command::Prepare(a) => cmd::prepare::run(a),
+        Command::Train(a) => cmd::train::run(a),
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,

@@ -4,5 +4,7 @@ pub mod bench;
 pub mod denoise;
 pub mod eval;
 pub mod inspect;
+pub mod prepare;
 pub mod pseudoref;
+pub mod train;
 pub mod warp;

@@ -1,0 +1,418 @@
+//! Tile datasets for training (`radn prepare`): windows of rendered sequences at several noise
+//! levels, pre-warped with confidence, cut into square tiles and stored as fixed-size half-float
+//! records in shards, so training reads them without decoding or aligning EXRs again.
+//!
+//! One record holds, for each input level (`high`, `half`, `low`), the window's network
+//! features `[T, INPUT_CHANNELS, S, S]` and linear colour `[T, 3, S, S]`, then the centre
+//! frame's colour `[3, S, S]` for each target level (`high`, `half`, `low`, `pseudo`).
+
+use std::fs::File;
+use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
+use std::path::{Path, PathBuf};
+
+use half::f16;
+use radn_core::align::{align_window, window_indices, AlignParams};
+use radn_core::frame::{Frame, FrameReader, Requirements};
+use radn_core::mapping::ChannelMapping;
+use radn_core::sequence::SequencePattern;
+use serde::{Deserialize, Serialize};
+
+use crate::config::INPUT_CHANNELS;
+use crate::error::{NnError, Result};
+use crate::input::{color_values, features};
+
+/// Levels a network input can come from, least noisy first.
+pub const INPUT_LEVELS: [&str; 3] = ["high", "half", "low"];
+/// Levels a target can come from, least noisy last: the pseudo-reference is the cleanest.
+pub const TARGET_LEVELS: [&str; 4] = ["high", "half", "low", "pseudo"];
+const RECORDS_PER_SHARD: usize = 64;
+const HEADER_BYTES: usize = 8;
+
+/// What `prepare` was asked to do.
+#[derive(Clone, Debug)]
+pub struct PrepareOptions {
+    /// Tile side in pixels.
+    pub tile: usize,
+    /// Tiles cut from each window (at seeded random positions).
+    pub tiles_per_window: usize,
+    /// Seed of the tile positions.
+    pub seed: u64,
+    /// Frames in a window.
+    pub frames: usize,
+}
+
+/// The dataset's description, stored as `manifest.json`.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct Manifest {
+    /// Format version.
+    pub format: u32,
+    /// Tile side.
+    pub tile: usize,
+    /// Frames per window.
+    pub frames: usize,
+    /// Channels of the features per frame.
+    pub feature_channels: usize,
+    /// Input levels, in record order.
+    pub input_levels: Vec<String>,
+    /// Target levels, in record order.
+    pub target_levels: Vec<String>,
+    /// Number of records.
+    pub records: usize,
+    /// Records per shard file.
+    pub records_per_shard: usize,
+    /// Bytes per record.
+    pub record_bytes: usize,
+    /// Seed of the tile positions.
+    pub seed: u64,
+    /// Source scenes.
+    pub scenes: Vec<String>,
+    /// Records with a pseudo-reference target.
+    pub with_pseudo: usize,
+}
+
+/// One training tile.
+#[derive(Clone, Debug)]
+pub struct Tile {
+    /// Per input level: features `[T, C, S, S]`.
+    pub features: Vec<Vec<f32>>,
+    /// Per input level: linear colour `[T, 3, S, S]`.
+    pub values: Vec<Vec<f32>>,
+    /// Per target level: centre colour `[3, S, S]` (None where that level is missing).
+    pub targets: Vec<Option<Vec<f32>>>,
+}
+
+fn record_bytes(tile: usize, frames: usize) -> usize {
+    let s2 = tile * tile;
+    let inputs = INPUT_LEVELS.len() * frames * (INPUT_CHANNELS + 3) * s2;
+    let targets = TARGET_LEVELS.len() * 3 * s2;
+    HEADER_BYTES + 2 * (inputs + targets)
+}
+
+/// A small deterministic generator (SplitMix64) for tile positions and training order.
+#[derive(Clone, Debug)]
+pub struct SplitMix(pub u64);
+
+impl SplitMix {
+    /// The next 64 random bits.
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// A uniform integer in `0..n`.
+    pub fn below(&mut self, n: usize) -> usize {
+        (self.next_u64() % n as u64) as usize
+    }
+}
+
+/// Cuts tiles from every scene under `data` (datagen layout `<scene>/<level>/frame_####.exr`)
+/// into `out`. Returns the manifest.
+pub fn prepare(
+    data: &Path,
+    out: &Path,
+    opts: &PrepareOptions,
+    mut progress: impl FnMut(usize, usize),
+) -> Result<Manifest> {
+    let scenes = scene_dirs(data)?;
+    std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
+    let rb = record_bytes(opts.tile, opts.frames);
+    let mut writer = ShardWriter::new(out, rb);
+    let mut with_pseudo = 0;
+    let total: usize = scenes.len();
+    for (si, scene) in scenes.iter().enumerate() {
+        let pattern = SequencePattern::from_folder(&scene.join("high"))?;
+        let numbers = pattern.frames(None)?;
+        let read_level = |level: &str, req: Requirements| -> Result<Option<Vec<Frame>>> {
+            let dir = scene.join(level);
+            if !dir.is_dir() {
+                return Ok(None);
+            }
+            let p = SequencePattern::from_folder(&dir)?;
+            let mapping = ChannelMapping::builtin("cycles").expect("built-in preset");
+            let reader = FrameReader::new(mapping, req);
+            numbers
+                .iter()
+                .map(|&f| reader.read(&p.path(f)).map(|r| r.0))
+                .collect::<std::result::Result<Vec<_>, _>>()
+                .map(Some)
+                .map_err(NnError::from)
+        };
+        let mut inputs: Vec<Vec<Frame>> = Vec::new();
+        for level in INPUT_LEVELS {
+            inputs.push(read_level(level, Requirements::DENOISE)?.ok_or_else(|| {
+                NnError::Config(format!(
+                    "scene '{}' has no '{level}' level",
+                    scene.display()
+                ))
+            })?);
+        }
+        let pseudo = read_level("pseudo", Requirements::COLOR_ONLY)?;
+        let (w, h) = (inputs[0][0].width(), inputs[0][0].height());
+        if w < opts.tile || h < opts.tile {
+            return Err(NnError::Config(format!(
+                "scene '{}' is {w}x{h}, smaller than the {} px tile",
+                scene.display(),
+                opts.tile
+            )));
+        }
+        for (k, _) in numbers.iter().enumerate() {
+            let idx = window_indices(k, numbers.len(), opts.frames / 2);
+            let mut feats = Vec::new();
+            let mut vals = Vec::new();
+            for level in &inputs {
+                let window: Vec<Option<&Frame>> =
+                    idx.iter().map(|i| i.map(|i| &level[i])).collect();
+                let win = align_window(&window, &AlignParams::default());
+                feats.push(features(&win));
+                vals.push(color_values(&win));
+            }
+            let mut targets: Vec<Option<&[f32]>> =
+                inputs.iter().map(|l| Some(l[k].color.data())).collect();
+            targets.push(pseudo.as_ref().map(|p| p[k].color.data()));
+            let mut rng =
+                SplitMix(opts.seed ^ ((si as u64) << 32) ^ (k as u64).wrapping_mul(0x9E37_79B9));
+            for _ in 0..opts.tiles_per_window {
+                let (x0, y0) = (rng.below(w - opts.tile + 1), rng.below(h - opts.tile + 1));
+                writer.write(&encode(opts, w, h, x0, y0, &feats, &vals, &targets))?;
+                if targets[3].is_some() {
+                    with_pseudo += 1;
+                }
+            }
+        }
+        progress(si + 1, total);
+    }
+    let records = writer.finish()?;
+    let manifest = Manifest {
+        format: 1,
+        tile: opts.tile,
+        frames: opts.frames,
+        feature_channels: INPUT_CHANNELS,
+        input_levels: INPUT_LEVELS.iter().map(|s| s.to_string()).collect(),
+        target_levels: TARGET_LEVELS.iter().map(|s| s.to_string()).collect(),
+        records,
+        records_per_shard: RECORDS_PER_SHARD,
+        record_bytes: rb,
+        seed: opts.seed,
+        scenes: scenes
+            .iter()
+            .map(|s| {
+                s.file_name()
+                    .map(|n| n.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            })
+            .collect(),
+        with_pseudo,
+    };
+    let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
+    std::fs::write(out.join("manifest.json"), text).map_err(|e| io_err(out, e))?;
+    Ok(manifest)
+}
+
+/// Scene folders (those with a `high` level) under `data`, or `data` itself.
+pub fn scene_dirs(data: &Path) -> Result<Vec<PathBuf>> {
+    if data.join("high").is_dir() {
+        return Ok(vec![data.to_path_buf()]);
+    }
+    let mut v: Vec<PathBuf> = std::fs::read_dir(data)
+        .map_err(|e| io_err(data, e))?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join("high").is_dir())
+        .collect();
+    v.sort();
+    if v.is_empty() {
+        return Err(NnError::Config(format!(
+            "'{}' holds no scene with a 'high' level",
+            data.display()
+        )));
+    }
+    Ok(v)
+}
+
+fn io_err(p: &Path, e: std::io::Error) -> NnError {
+    NnError::Save {
+        path: p.to_path_buf(),
+        detail: e.to_string(),
+    }
+}
+
+#[allow(clippy::too_many_arguments)]
+fn encode(
+    opts: &PrepareOptions,
+    w: usize,
+    h: usize,
+    x0: usize,
+    y0: usize,
+    feats: &[Vec<f32>],
+    vals: &[Vec<f32>],
+    targets: &[Option<&[f32]>],
+) -> Vec<u8> {
+    let s = opts.tile;
+    let mut out = Vec::with_capacity(record_bytes(s, opts.frames));
+    let flags: u32 = if targets[3].is_some() { 1 } else { 0 };
+    out.extend_from_slice(&flags.to_le_bytes());
+    out.extend_from_slice(&[0u8; HEADER_BYTES - 4]);
+    let mut crop = |data: &[f32], planes: usize| {
+        for p in 0..planes {
+            for y in y0..y0 + s {
+                let row = &data[p * w * h + y * w + x0..p * w * h + y * w + x0 + s];
+                for v in row {
+                    out.extend_from_slice(&f16::from_f32(*v).to_le_bytes());
+                }
+            }
+        }
+    };
+    for (f, v) in feats.iter().zip(vals) {
+        crop(f, opts.frames * INPUT_CHANNELS);
+        crop(v, opts.frames * 3);
+    }
+    for t in targets {
+        match t {
+            Some(t) => crop(t, 3),
+            None => crop(&vec![0.0; 3 * w * h], 3),
+        }
+    }
+    out
+}
+
+struct ShardWriter {
+    dir: PathBuf,
+    record_bytes: usize,
+    count: usize,
+    file: Option<BufWriter<File>>,
+}
+
+impl ShardWriter {
+    fn new(dir: &Path, record_bytes: usize) -> Self {
+        Self {
+            dir: dir.to_path_buf(),
+            record_bytes,
+            count: 0,
+            file: None,
+        }
+    }
+
+    fn write(&mut self, record: &[u8]) -> Result<()> {
+        debug_assert_eq!(record.len(), self.record_bytes);
+        if self.count.is_multiple_of(RECORDS_PER_SHARD) {
+            if let Some(mut f) = self.file.take() {
+                f.flush().map_err(|e| io_err(&self.dir, e))?;
+            }
+            let p = shard_path(&self.dir, self.count / RECORDS_PER_SHARD);
+            self.file = Some(BufWriter::new(File::create(&p).map_err(|e| io_err(&p, e))?));
+        }
+        self.file
+            .as_mut()
+            .expect("open shard")
+            .write_all(record)
+            .map_err(|e| io_err(&self.dir, e))?;
+        self.count += 1;
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<usize> {
+        if let Some(mut f) = self.file.take() {
+            f.flush().map_err(|e| io_err(&self.dir, e))?;
+        }
+        Ok(self.count)
+    }
+}
+
+fn shard_path(dir: &Path, i: usize) -> PathBuf {
+    dir.join(format!("shard_{i:05}.bin"))
+}
+
+/// A prepared tile dataset, read record by record.
+#[derive(Clone, Debug)]
+pub struct TileDataset {
+    dir: PathBuf,
+    /// Its manifest.
+    pub manifest: Manifest,
+}
+
+impl TileDataset {
+    /// Opens a folder made by [`prepare`].
+    pub fn open(dir: &Path) -> Result<Self> {
+        let err = |detail: String| NnError::Load {
+            path: dir.to_path_buf(),
+            detail,
+        };
+        let text = std::fs::read_to_string(dir.join("manifest.json"))
+            .map_err(|e| err(format!("no manifest.json ({e})")))?;
+        let manifest: Manifest =
+            serde_json::from_str(&text).map_err(|e| err(format!("bad manifest.json ({e})")))?;
+        if manifest.feature_channels != INPUT_CHANNELS
+            || manifest.record_bytes != record_bytes(manifest.tile, manifest.frames)
+        {
+            return Err(err(
+                "the manifest does not match this version of radn's tile layout".into(),
+            ));
+        }
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            manifest,
+        })
+    }
+
+    /// Number of tiles.
+    pub fn len(&self) -> usize {
+        self.manifest.records
+    }
+
+    /// True when there are no tiles.
+    pub fn is_empty(&self) -> bool {
+        self.manifest.records == 0
+    }
+
+    /// Reads tile `i`.
+    pub fn get(&self, i: usize) -> Result<Tile> {
+        let m = &self.manifest;
+        let p = shard_path(&self.dir, i / m.records_per_shard);
+        let err = |detail: String| NnError::Load {
+            path: p.clone(),
+            detail,
+        };
+        let mut f = File::open(&p).map_err(|e| err(e.to_string()))?;
+        f.seek(SeekFrom::Start(
+            ((i % m.records_per_shard) * m.record_bytes) as u64,
+        ))
+        .map_err(|e| err(e.to_string()))?;
+        let mut buf = vec![0u8; m.record_bytes];
+        f.read_exact(&mut buf)
+            .map_err(|_| err(format!("record {i} is truncated")))?;
+        let flags = u32::from_le_bytes([buf[0], buf[1], buf[2], buf[3]]);
+        let mut pos = HEADER_BYTES;
+        let mut take = |n: usize| -> Vec<f32> {
+            let v = buf[pos..pos + 2 * n]
+                .chunks_exact(2)
+                .map(|b| f16::from_le_bytes([b[0], b[1]]).to_f32())
+                .collect();
+            pos += 2 * n;
+            v
+        };
+        let s2 = m.tile * m.tile;
+        let mut features = Vec::new();
+        let mut values = Vec::new();
+        for _ in 0..m.input_levels.len() {
+            features.push(take(m.frames * m.feature_channels * s2));
+            values.push(take(m.frames * 3 * s2));
+        }
+        let mut targets = Vec::new();
+        for (k, _) in m.target_levels.iter().enumerate() {
+            let t = take(3 * s2);
+            targets.push(if k == 3 && flags & 1 == 0 {
+                None
+            } else {
+                Some(t)
+            });
+        }
+        Ok(Tile {
+            features,
+            values,
+            targets,
+        })
+    }
+}

@@ -1,0 +1,216 @@
+//! The training objective: Noise2Noise pairs of noise levels (paper section 6) and the
+//! spatial-to-temporal loss conversion (paper section 5).
+
+use burn::tensor::Tensor;
+use serde::{Deserialize, Serialize};
+
+use crate::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
+use crate::loss::{l1, smape};
+use crate::model::Prediction;
+
+/// Which per-pixel loss.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum PixelLoss {
+    /// Symmetric mean absolute percentage error.
+    Smape,
+    /// Mean absolute error.
+    L1,
+}
+
+/// How the window's kernels are turned into loss terms.
+#[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum LossMode {
+    /// The paper's conversion: the centre frame alone, and pairs of one earlier and one later
+    /// frame ({1,4} and {2,5} in a 5-frame window), each against the centre target.
+    Temporal,
+    /// The plain loss on the full window's output (the ablation's baseline).
+    Spatial,
+}
+
+/// A Noise2Noise pair: input level index (into `INPUT_LEVELS`) and target level index (into
+/// `TARGET_LEVELS`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Pair {
+    /// Input level.
+    pub input: usize,
+    /// Target level.
+    pub target: usize,
+}
+
+/// Noise rank of a level: higher is noisier (low 4 spp > half > high > pseudo-reference).
+fn noise_rank(level: &str) -> u8 {
+    match level {
+        "low" => 3,
+        "half" => 2,
+        "high" => 1,
+        _ => 0, // pseudo
+    }
+}
+
+/// Every valid pair: the target strictly less noisy than the input, and never the same render
+/// (the pseudo-reference is made from the `high` render, so `high → pseudo` is excluded).
+pub fn valid_pairs(with_pseudo: bool) -> Vec<Pair> {
+    let mut v = Vec::new();
+    for (i, inp) in INPUT_LEVELS.iter().enumerate() {
+        for (t, tgt) in TARGET_LEVELS.iter().enumerate() {
+            let independent = !(*inp == "high" && *tgt == "pseudo") && inp != tgt;
+            let available = *tgt != "pseudo" || with_pseudo;
+            if noise_rank(tgt) < noise_rank(inp) && independent && available {
+                v.push(Pair {
+                    input: i,
+                    target: t,
+                });
+            }
+        }
+    }
+    v
+}
+
+/// Draws one pair uniformly among the valid ones.
+pub fn sample_pair(rng: &mut SplitMix, with_pseudo: bool) -> Pair {
+    let pairs = valid_pairs(with_pseudo);
+    pairs[rng.below(pairs.len())]
+}
+
+/// The frame subsets of the temporal loss for a window of `frames`: the centre alone, then
+/// pairs (i, i + centre + 1) of one earlier and one later frame.
+pub fn loss_subsets(frames: usize) -> Vec<Vec<bool>> {
+    let c = frames / 2;
+    let mut subsets = vec![(0..frames).map(|i| i == c).collect::<Vec<bool>>()];
+    for i in 0..c {
+        subsets.push((0..frames).map(|j| j == i || j == i + c + 1).collect());
+    }
+    subsets
+}
+
+/// The loss of a prediction on the window's values against the centre target.
+pub fn objective(
+    pred: &Prediction,
+    values: Tensor<5>,
+    target: Tensor<4>,
+    mode: LossMode,
+    loss: PixelLoss,
+    full_weight: f32,
+    frames: usize,
+) -> Tensor<1> {
+    let l = |x: Tensor<4>| match loss {
+        PixelLoss::Smape => smape(x, target.clone()),
+        PixelLoss::L1 => l1(x, target.clone()),
+    };
+    match mode {
+        LossMode::Spatial => l(pred.apply(values)),
+        LossMode::Temporal => {
+            let mut total: Option<Tensor<1>> = None;
+            for mask in loss_subsets(frames) {
+                if let Some(sub) = pred.subset(&mask) {
+                    let term = l(sub.apply(values.clone()));
+                    total = Some(match total {
+                        Some(t) => t + term,
+                        None => term,
+                    });
+                }
+            }
+            let total = total.expect("the centre-frame term always exists");
+            if full_weight > 0.0 {
+                total + l(pred.apply(values)) * full_weight
+            } else {
+                total
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::kernel::Kernels;
+    use burn::tensor::{Device, TensorData};
+
+    #[test]
+    fn pairs_never_target_a_noisier_or_the_same_render() {
+        for with_pseudo in [false, true] {
+            let pairs = valid_pairs(with_pseudo);
+            assert_eq!(pairs.len(), if with_pseudo { 5 } else { 3 });
+            for p in &pairs {
+                let (i, t) = (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
+                assert!(noise_rank(t) < noise_rank(i), "{i} -> {t}");
+                assert_ne!(i, t);
+                assert!(!(i == "high" && t == "pseudo"), "pseudo is made from high");
+            }
+            let mut rng = SplitMix(7);
+            for _ in 0..1000 {
+                assert!(pairs.contains(&sample_pair(&mut rng, with_pseudo)));
+            }
+        }
+    }
+
+    #[test]
+    fn subsets_are_the_papers() {
+        let s = loss_subsets(5);
+        assert_eq!(s[0], vec![false, false, true, false, false]);
+        assert_eq!(s[1], vec![true, false, false, true, false]); // frames {1, 4}, 1-based
+        assert_eq!(s[2], vec![false, true, false, false, true]); // frames {2, 5}
+        assert_eq!(s.len(), 3);
+        assert_eq!(
+            loss_subsets(3),
+            vec![vec![false, true, false], vec![true, false, true]]
+        );
+    }
+
+    #[test]
+    fn temporal_loss_uses_exactly_those_subsets() {
+        // 1×1 kernels, 5 frames, one pixel; frame j holds the value j; the kernel weights
+        // (0.1, 0.2, 0.4, 0.2, 0.1); the target is 0
+        let d = Device::flex();
+        let k = Kernels {
+            weights: Tensor::from_data(
+                TensorData::new(vec![0.1f32, 0.2, 0.4, 0.2, 0.1], [1, 5, 1, 1]),
+                &d,
+            ),
+            frames: 5,
+            size: 1,
+        };
+        let pred = Prediction::Single(k);
+        let values = Tensor::<5>::from_data(
+            TensorData::new(vec![0.0f32, 1.0, 2.0, 3.0, 4.0], [1, 5, 1, 1, 1]),
+            &d,
+        );
+        let target = Tensor::<4>::zeros([1, 1, 1, 1], &d);
+        let got = objective(
+            &pred,
+            values.clone(),
+            target.clone(),
+            LossMode::Temporal,
+            PixelLoss::L1,
+            0.0,
+            5,
+        )
+        .into_scalar::<f32>();
+        // centre alone: 2; {1,4}: (0.1·0 + 0.2·3)/0.3 = 2; {2,5}: (0.2·1 + 0.1·4)/0.3 = 2
+        assert!((got - 6.0).abs() < 1e-5, "{got}");
+        let spatial = objective(
+            &pred,
+            values.clone(),
+            target.clone(),
+            LossMode::Spatial,
+            PixelLoss::L1,
+            0.0,
+            5,
+        )
+        .into_scalar::<f32>();
+        assert!((spatial - 2.0).abs() < 1e-5); // 0.2 + 0.8 + 0.6 + 0.4 = 2
+        let with_full = objective(
+            &pred,
+            values,
+            target,
+            LossMode::Temporal,
+            PixelLoss::L1,
+            0.5,
+            5,
+        )
+        .into_scalar::<f32>();
+        assert!((with_full - 7.0).abs() < 1e-5);
+    }
+}

@@ -1,0 +1,497 @@
+//! Training (`radn train`): Noise2Noise pairs from a prepared tile set, the spatial-to-temporal
+//! loss, Adam with warm-up and cosine decay, periodic validation, checkpoints, and resumption
+//! that continues exactly where a run stopped (each step's randomness derives from the seed and
+//! the step number; the optimizer state is saved with the weights).
+
+use std::io::Write;
+use std::path::{Path, PathBuf};
+
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+
+use crate::config::{NetConfig, INPUT_CHANNELS};
+use crate::dataset::{SplitMix, Tile, TileDataset};
+use crate::error::{NnError, Result};
+use crate::model::Denoiser;
+use crate::objective::{objective, sample_pair, LossMode, PixelLoss};
+use crate::store;
+
+/// A training run's settings (TOML).
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct TrainConfig {
+    /// Network preset name, or a path to a network TOML file.
+    pub model: String,
+    /// Prepared training tiles.
+    pub train: PathBuf,
+    /// Prepared validation tiles (kept apart from training).
+    pub val: PathBuf,
+    /// Tiles per step.
+    #[serde(default = "d_batch")]
+    pub batch: usize,
+    /// Crop tiles to this size at a random position (speed); `None` uses whole tiles.
+    #[serde(default)]
+    pub crop: Option<usize>,
+    /// Optimizer steps.
+    pub steps: usize,
+    /// Peak learning rate.
+    #[serde(default = "d_lr")]
+    pub lr: f64,
+    /// Linear warm-up steps before cosine decay to 5% of the peak.
+    #[serde(default = "d_warmup")]
+    pub warmup: usize,
+    /// Per-pixel loss.
+    #[serde(default = "d_loss")]
+    pub loss: PixelLoss,
+    /// Temporal (the paper's conversion) or spatial loss.
+    #[serde(default = "d_mode")]
+    pub mode: LossMode,
+    /// Weight of the full-window term added to the temporal loss (0: off; post-training).
+    #[serde(default)]
+    pub full_weight: f32,
+    /// Validate every this many steps.
+    #[serde(default = "d_every")]
+    pub validate_every: usize,
+    /// Validation tiles used (the first ones of the validation set).
+    #[serde(default = "d_val_tiles")]
+    pub val_tiles: usize,
+    /// Seed of batch order, pairs and crops.
+    #[serde(default = "d_seed")]
+    pub seed: u64,
+}
+
+fn d_batch() -> usize {
+    4
+}
+fn d_lr() -> f64 {
+    3e-4
+}
+fn d_warmup() -> usize {
+    50
+}
+fn d_loss() -> PixelLoss {
+    PixelLoss::Smape
+}
+fn d_mode() -> LossMode {
+    LossMode::Temporal
+}
+fn d_every() -> usize {
+    100
+}
+fn d_val_tiles() -> usize {
+    16
+}
+fn d_seed() -> u64 {
+    1
+}
+
+impl TrainConfig {
+    /// Parses a training config.
+    pub fn parse(text: &str) -> Result<Self> {
+        toml::from_str(text).map_err(|e| NnError::Config(e.to_string()))
+    }
+
+    /// The network this config trains.
+    pub fn net_config(&self, base: &Path) -> Result<NetConfig> {
+        let p = base.join(&self.model);
+        if p.is_file() {
+            let text = std::fs::read_to_string(&p)
+                .map_err(|e| NnError::Config(format!("{}: {e}", p.display())))?;
+            NetConfig::parse(&text)
+        } else {
+            NetConfig::preset(&self.model)
+        }
+    }
+
+    /// The learning rate at a step: linear warm-up, then cosine decay to 5% of the peak.
+    pub fn lr_at(&self, step: usize) -> f64 {
+        if step < self.warmup {
+            return self.lr * (step + 1) as f64 / self.warmup as f64;
+        }
+        let t =
+            (step - self.warmup) as f64 / (self.steps.saturating_sub(self.warmup)).max(1) as f64;
+        self.lr * (0.05 + 0.95 * 0.5 * (1.0 + (std::f64::consts::PI * t.min(1.0)).cos()))
+    }
+}
+
+/// Saved between steps so a run can resume.
+#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
+pub struct TrainState {
+    /// Steps completed.
+    pub step: usize,
+    /// Best validation loss so far.
+    pub best_val: Option<f64>,
+}
+
+/// One validation result.
+#[derive(Clone, Debug, Serialize)]
+pub struct Validation {
+    /// Mean loss (the training objective) over the validation tiles.
+    pub loss: f64,
+    /// Mean PSNR (tonemapped) of the full-window output against the cleanest target.
+    pub psnr: f64,
+}
+
+/// A batch as tensors: features `[B,T,C,S,S]`, values `[B,T,3,S,S]`, target `[B,3,S,S]`.
+pub struct Batch {
+    /// Network input.
+    pub features: Tensor<5>,
+    /// Linear colour the kernels are applied to.
+    pub values: Tensor<5>,
+    /// Centre target.
+    pub target: Tensor<4>,
+}
+
+/// Crops and stacks tiles with their chosen (input, target) levels.
+pub fn make_batch(
+    tiles: &[(Tile, usize, usize, usize, usize)],
+    frames: usize,
+    tile: usize,
+    crop: usize,
+    device: &Device,
+) -> Batch {
+    let b = tiles.len();
+    let (mut f, mut v, mut t) = (Vec::new(), Vec::new(), Vec::new());
+    let cut = |data: &[f32], planes: usize, x0: usize, y0: usize, out: &mut Vec<f32>| {
+        for p in 0..planes {
+            for y in y0..y0 + crop {
+                out.extend_from_slice(
+                    &data[p * tile * tile + y * tile + x0..p * tile * tile + y * tile + x0 + crop],
+                );
+            }
+        }
+    };
+    for (tl, input, target, x0, y0) in tiles {
+        cut(
+            &tl.features[*input],
+            frames * INPUT_CHANNELS,
+            *x0,
+            *y0,
+            &mut f,
+        );
+        cut(&tl.values[*input], frames * 3, *x0, *y0, &mut v);
+        cut(
+            tl.targets[*target].as_ref().expect("sampled targets exist"),
+            3,
+            *x0,
+            *y0,
+            &mut t,
+        );
+    }
+    Batch {
+        features: Tensor::from_data(
+            TensorData::new(f, [b, frames, INPUT_CHANNELS, crop, crop]),
+            device,
+        ),
+        values: Tensor::from_data(TensorData::new(v, [b, frames, 3, crop, crop]), device),
+        target: Tensor::from_data(TensorData::new(t, [b, 3, crop, crop]), device),
+    }
+}
+
+/// A training run in `out`: `model.safetensors`, `optimizer.bpk`, `state.json`, `metrics.csv`.
+pub struct Trainer {
+    /// Settings.
+    pub config: TrainConfig,
+    /// Output folder.
+    pub out: PathBuf,
+    /// The network being trained.
+    pub denoiser: Denoiser,
+    optim: burn::optim::ModuleOptimizer,
+    /// Progress.
+    pub state: TrainState,
+    train: TileDataset,
+    val: TileDataset,
+    device: Device,
+}
+
+impl Trainer {
+    /// Starts a run, or resumes the one in `out` when `resume` is set.
+    pub fn new(
+        config: TrainConfig,
+        base: &Path,
+        out: &Path,
+        resume: bool,
+        device: &Device,
+    ) -> Result<Self> {
+        let train = TileDataset::open(&base.join(&config.train))?;
+        let val = TileDataset::open(&base.join(&config.val))?;
+        if train.is_empty() || val.is_empty() {
+            return Err(NnError::Config(
+                "the training and validation tile sets must not be empty".into(),
+            ));
+        }
+        std::fs::create_dir_all(out).map_err(|e| NnError::Save {
+            path: out.to_path_buf(),
+            detail: e.to_string(),
+        })?;
+        let net_cfg = config.net_config(base)?;
+        if net_cfg.frames != train.manifest.frames {
+            return Err(NnError::Config(format!(
+                "the network has {} frames, the tiles {}",
+                net_cfg.frames, train.manifest.frames
+            )));
+        }
+        let state_path = out.join("state.json");
+        let (denoiser, optim, state) = if resume && state_path.exists() {
+            let state: TrainState =
+                serde_json::from_str(&std::fs::read_to_string(&state_path).map_err(|e| {
+                    NnError::Load {
+                        path: state_path.clone(),
+                        detail: e.to_string(),
+                    }
+                })?)
+                .map_err(|e| NnError::Load {
+                    path: state_path.clone(),
+                    detail: e.to_string(),
+                })?;
+            let d = store::load(&out.join("model.safetensors"), device)?;
+            let optim = AdamConfig::new()
+                .init()
+                .load(out.join("optimizer.bpk"))
+                .map_err(|e| NnError::Load {
+                    path: out.join("optimizer.bpk"),
+                    detail: format!("{e:?}"),
+                })?;
+            (d, optim, state)
+        } else {
+            (
+                Denoiser::new(net_cfg, device),
+                AdamConfig::new().init(),
+                TrainState {
+                    step: 0,
+                    best_val: None,
+                },
+            )
+        };
+        Ok(Self {
+            config,
+            out: out.to_path_buf(),
+            denoiser,
+            optim,
+            state,
+            train,
+            val,
+            device: device.clone(),
+        })
+    }
+
+    /// The tiles, pairs and crop offsets of a step: a pure function of (seed, step).
+    pub fn plan_step(&self, step: usize) -> Vec<(usize, usize, usize, usize, usize)> {
+        let mut rng = SplitMix(self.config.seed.wrapping_mul(0x2545_F491_4F6C_DD1D) ^ step as u64);
+        let tile = self.train.manifest.tile;
+        let crop = self.config.crop.unwrap_or(tile).min(tile);
+        (0..self.config.batch)
+            .map(|_| {
+                let i = rng.below(self.train.len());
+                let pair = sample_pair(&mut rng, true);
+                let (x0, y0) = (rng.below(tile - crop + 1), rng.below(tile - crop + 1));
+                (i, pair.input, pair.target, x0, y0)
+            })
+            .collect()
+    }
+
+    /// Runs one optimizer step; returns the loss.
+    pub fn step(&mut self) -> Result<f64> {
+        let step = self.state.step;
+        let plan = self.plan_step(step);
+        let tile = self.train.manifest.tile;
+        let crop = self.config.crop.unwrap_or(tile).min(tile);
+        let mut tiles = Vec::new();
+        for (i, input, mut target, x0, y0) in plan {
+            let t = self.train.get(i)?;
+            if t.targets[target].is_none() {
+                // no pseudo-reference for this tile: the `high` render is the next cleanest
+                // (the pair stays valid: pseudo is only drawn for `low` and `half` inputs)
+                target = 0;
+            }
+            tiles.push((t, input, target, x0, y0));
+        }
+        let frames = self.train.manifest.frames;
+        let b = make_batch(&tiles, frames, tile, crop, &self.device);
+        let thr = self.denoiser.config.default_threshold();
+        let pred = self.denoiser.predict(b.features, thr);
+        let loss = objective(
+            &pred,
+            b.values,
+            b.target,
+            self.config.mode,
+            self.config.loss,
+            self.config.full_weight,
+            frames,
+        );
+        let value = loss.clone().into_scalar::<f32>() as f64;
+        if !value.is_finite() {
+            return Err(NnError::Config(format!(
+                "the loss became {value} at step {step}"
+            )));
+        }
+        let grads = GradientsParams::from_grads(loss.backward(), &self.denoiser.net);
+        // modules hold tensor handles: the clone is cheap
+        self.denoiser.net =
+            self.optim
+                .step(self.config.lr_at(step), self.denoiser.net.clone(), grads);
+        self.state.step += 1;
+        Ok(value)
+    }
+
+    /// Loss and PSNR on the validation tiles (input `low`, target the cleanest available).
+    pub fn validate(&self) -> Result<Validation> {
+        let n = self.config.val_tiles.min(self.val.len());
+        let tile = self.val.manifest.tile;
+        let frames = self.val.manifest.frames;
+        let thr = self.denoiser.config.default_threshold();
+        let (mut loss, mut psnr) = (0.0, 0.0);
+        for i in 0..n {
+            let t = self.val.get(i)?;
+            let target = if t.targets[3].is_some() { 3 } else { 0 };
+            let b = make_batch(&[(t, 2, target, 0, 0)], frames, tile, tile, &self.device);
+            let pred = self.denoiser.predict(b.features.detach(), thr);
+            loss += objective(
+                &pred,
+                b.values.clone(),
+                b.target.clone(),
+                self.config.mode,
+                self.config.loss,
+                self.config.full_weight,
+                frames,
+            )
+            .into_scalar::<f32>() as f64;
+            let out = pred.apply(b.values);
+            let tm = |x: Tensor<4>| {
+                let x = x.clamp_min(0.0);
+                (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)
+            };
+            let mse = (tm(out) - tm(b.target))
+                .powf_scalar(2.0)
+                .mean()
+                .into_scalar::<f32>() as f64;
+            psnr += radn_core::metrics::psnr_from_mse(mse);
+        }
+        Ok(Validation {
+            loss: loss / n as f64,
+            psnr: psnr / n as f64,
+        })
+    }
+
+    /// Saves weights, optimizer and progress (each file written whole, then renamed).
+    pub fn checkpoint(&self) -> Result<()> {
+        store::save(&self.denoiser, &self.out.join("model.safetensors"))?;
+        let tmp = self.out.join(".optimizer.bpk.tmp");
+        self.optim.save(&tmp).map_err(|e| NnError::Save {
+            path: tmp.clone(),
+            detail: format!("{e:?}"),
+        })?;
+        std::fs::rename(&tmp, self.out.join("optimizer.bpk")).map_err(|e| NnError::Save {
+            path: self.out.clone(),
+            detail: e.to_string(),
+        })?;
+        let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
+        let tmp = self.out.join(".state.json.tmp");
+        std::fs::write(&tmp, st).map_err(|e| NnError::Save {
+            path: tmp.clone(),
+            detail: e.to_string(),
+        })?;
+        std::fs::rename(&tmp, self.out.join("state.json")).map_err(|e| NnError::Save {
+            path: self.out.clone(),
+            detail: e.to_string(),
+        })?;
+        Ok(())
+    }
+
+    /// Appends a line to `metrics.csv` (header written once).
+    pub fn log(
+        &self,
+        kind: &str,
+        loss: f64,
+        psnr: Option<f64>,
+        tiles_per_s: Option<f64>,
+    ) -> Result<()> {
+        let p = self.out.join("metrics.csv");
+        let new = !p.exists();
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&p)
+            .map_err(|e| NnError::Save {
+                path: p.clone(),
+                detail: e.to_string(),
+            })?;
+        if new {
+            writeln!(f, "step,kind,loss,psnr,lr,tiles_per_s").map_err(|e| NnError::Save {
+                path: p.clone(),
+                detail: e.to_string(),
+            })?;
+        }
+        let opt = |v: Option<f64>| v.map(|v| format!("{v:.6}")).unwrap_or_default();
+        writeln!(
+            f,
+            "{},{kind},{loss:.6},{},{:.3e},{}",
+            self.state.step,
+            opt(psnr),
+            self.config.lr_at(self.state.step.saturating_sub(1)),
+            opt(tiles_per_s)
+        )
+        .map_err(|e| NnError::Save {
+            path: p.clone(),
+            detail: e.to_string(),
+        })
+    }
+}
+
+/// What a training loop reports after each step.
+#[derive(Clone, Debug)]
+pub struct Progress {
+    /// Steps done.
+    pub step: usize,
+    /// This step's loss.
+    pub loss: f64,
+    /// Tiles per second over the last step.
+    pub tiles_per_s: f64,
+    /// The validation result, when this step validated.
+    pub validation: Option<Validation>,
+}
+
+impl Trainer {
+    /// Trains until `config.steps`, validating and checkpointing every `validate_every` steps
+    /// and at the end.
+    pub fn run(&mut self, mut on_step: impl FnMut(&Progress)) -> Result<()> {
+        if self.state.step == 0 {
+            let v = self.validate()?;
+            self.log("val", v.loss, Some(v.psnr), None)?;
+            on_step(&Progress {
+                step: 0,
+                loss: f64::NAN,
+                tiles_per_s: 0.0,
+                validation: Some(v),
+            });
+        }
+        while self.state.step < self.config.steps {
+            let t = std::time::Instant::now();
+            let loss = self.step()?;
+            let tps = self.config.batch as f64 / t.elapsed().as_secs_f64();
+            self.log("train", loss, None, Some(tps))?;
+            let validation = if self.state.step.is_multiple_of(self.config.validate_every)
+                || self.state.step == self.config.steps
+            {
+                let v = self.validate()?;
+                self.log("val", v.loss, Some(v.psnr), None)?;
+                if self.state.best_val.is_none_or(|b| v.loss < b) {
+                    self.state.best_val = Some(v.loss);
+                    store::save(&self.denoiser, &self.out.join("best.safetensors"))?;
+                }
+                self.checkpoint()?;
+                Some(v)
+            } else {
+                None
+            };
+            on_step(&Progress {
+                step: self.state.step,
+                loss,
+                tiles_per_s: tps,
+                validation,
+            });
+        }
+        Ok(())
+    }
+}

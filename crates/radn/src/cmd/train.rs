@@ -1,0 +1,61 @@
+//! `radn train`: train a network on prepared tiles.
+
+use std::path::PathBuf;
+
+use anyhow::{Context, Result};
+use radn_nn::train::{TrainConfig, Trainer};
+
+/// Arguments of `radn train`.
+#[derive(clap::Args)]
+pub struct Args {
+    /// Training config (TOML): model preset, tile folders, steps, learning rate, loss, ...
+    #[arg(long)]
+    pub config: PathBuf,
+    /// Run folder: model.safetensors, best.safetensors, optimizer.bpk, state.json, metrics.csv.
+    #[arg(long)]
+    pub out: PathBuf,
+    /// Continue the run in --out from its last checkpoint.
+    #[arg(long)]
+    pub resume: bool,
+}
+
+/// Trains.
+pub fn run(a: Args) -> Result<()> {
+    let text = std::fs::read_to_string(&a.config)
+        .with_context(|| format!("cannot read '{}'", a.config.display()))?;
+    let config = TrainConfig::parse(&text).with_context(|| format!("'{}'", a.config.display()))?;
+    let base = a.config.parent().map(PathBuf::from).unwrap_or_default();
+    let device = radn_nn::burn::tensor::Device::flex().autodiff();
+    let mut trainer = Trainer::new(config.clone(), &base, &a.out, a.resume, &device)?;
+    let pb = indicatif::ProgressBar::new(config.steps as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps  ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_position(trainer.state.step as u64);
+    println!(
+        "training '{}' ({} parameters) from step {} to {}",
+        trainer.denoiser.config.name,
+        trainer.denoiser.num_params(),
+        trainer.state.step,
+        config.steps
+    );
+    trainer.run(|p| {
+        pb.set_position(p.step as u64);
+        pb.set_message(format!("loss {:.4}  {:.2} tiles/s", p.loss, p.tiles_per_s));
+        if let Some(v) = &p.validation {
+            pb.println(format!(
+                "step {:>6}: validation loss {:.4}, PSNR {:.2} dB",
+                p.step, v.loss, v.psnr
+            ));
+        }
+    })?;
+    pb.finish_and_clear();
+    println!(
+        "done: {} (best: {})",
+        a.out.join("model.safetensors").display(),
+        a.out.join("best.safetensors").display()
+    );
+    Ok(())
+}
