@@ -131,6 +131,17 @@ impl Denoiser {
         Self { net, config }
     }
 
+    /// Draws every parameter's initial value now. burn initialises parameters lazily, on first
+    /// use, so without this the random draws would happen in whatever order the parameters are
+    /// first touched, and a seeded run would not be reproducible.
+    pub fn materialize(&self) {
+        use burn::store::ModuleSnapshot;
+        let mut store = burn::store::SafetensorsStore::from_bytes(None);
+        self.net
+            .save_into(&mut store)
+            .expect("collecting parameters into memory cannot fail");
+    }
+
     /// The RA blocks of the network (none for the baselines).
     pub fn ra_blocks(&self) -> Vec<&crate::ra_block::RobustAverage> {
         match &self.net {

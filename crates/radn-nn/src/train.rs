@@ -7,6 +7,7 @@ use std::io::Write;
 use std::path::{Path, PathBuf};
 
 use burn::optim::{AdamConfig, GradientsParams};
+use burn::store::ModuleSnapshot;
 use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
@@ -245,7 +246,20 @@ impl Trainer {
                     path: state_path.clone(),
                     detail: e.to_string(),
                 })?;
-            let d = store::load(&out.join("model.safetensors"), device)?;
+            // the Burnpack checkpoint keeps parameter ids, which the optimizer state is keyed by
+            let mut d = Denoiser::new(net_cfg, device);
+            let ck = out.join("checkpoint.bpk");
+            let mut bp = burn::store::BurnpackStore::from_file(&ck);
+            let r = d.net.load_from(&mut bp).map_err(|e| NnError::Load {
+                path: ck.clone(),
+                detail: format!("{e:?}"),
+            })?;
+            if !r.missing.is_empty() || !r.errors.is_empty() {
+                return Err(NnError::Load {
+                    path: ck,
+                    detail: "the checkpoint does not match the configured network".into(),
+                });
+            }
             let optim = AdamConfig::new()
                 .init()
                 .load(out.join("optimizer.bpk"))
@@ -374,9 +388,23 @@ impl Trainer {
         })
     }
 
-    /// Saves weights, optimizer and progress (each file written whole, then renamed).
+    /// Saves weights (a Burnpack checkpoint with parameter ids for resuming, and the
+    /// SafeTensors model file), optimizer and progress (each written whole, then renamed).
     pub fn checkpoint(&self) -> Result<()> {
         store::save(&self.denoiser, &self.out.join("model.safetensors"))?;
+        let tmp = self.out.join(".checkpoint.bpk.tmp");
+        let mut bp = burn::store::BurnpackStore::from_file(&tmp).overwrite(true);
+        self.denoiser
+            .net
+            .save_into(&mut bp)
+            .map_err(|e| NnError::Save {
+                path: tmp.clone(),
+                detail: format!("{e:?}"),
+            })?;
+        std::fs::rename(&tmp, self.out.join("checkpoint.bpk")).map_err(|e| NnError::Save {
+            path: self.out.clone(),
+            detail: e.to_string(),
+        })?;
         let tmp = self.out.join(".optimizer.bpk.tmp");
         self.optim.save(&tmp).map_err(|e| NnError::Save {
             path: tmp.clone(),
