@@ -5,7 +5,7 @@
 
 use burn::tensor::activation::softmax;
 use burn::tensor::module::unfold4d;
-use burn::tensor::ops::UnfoldOptions;
+use burn::tensor::ops::{PadMode, UnfoldOptions};
 use burn::tensor::Tensor;
 
 use crate::config::Activation;
@@ -92,7 +92,8 @@ impl Kernels {
     }
 
     /// Applies the kernels to the frames' values `[B, frames, C, H, W]` (linear, warped):
-    /// a dot product with each pixel's k×k×frames neighbourhood. Returns `[B, C, H, W]`.
+    /// a dot product with each pixel's k×k×frames neighbourhood. Beyond the image the edge
+    /// pixels repeat (zero padding would darken the border). Returns `[B, C, H, W]`.
     pub fn apply(&self, values: Tensor<5>) -> Tensor<4> {
         let [b, t, c, h, w] = values.dims();
         assert_eq!(
@@ -102,11 +103,10 @@ impl Kernels {
         let k = self.size;
         let k2 = k * k;
         let pad = k / 2;
-        let patches = unfold4d(
-            values.reshape([b * t, c, h, w]),
-            [k, k],
-            UnfoldOptions::new([1, 1], [pad, pad], [1, 1]),
-        );
+        let padded = values
+            .reshape([b * t, c, h, w])
+            .pad((pad, pad, pad, pad), PadMode::Edge);
+        let patches = unfold4d(padded, [k, k], UnfoldOptions::new([1, 1], [0, 0], [1, 1]));
         // [B·T, C·k², H·W] → [B, T, C, k², H·W]
         let patches = patches.reshape([b, t, c, k2, h * w]);
         let weights = self.weights.clone().reshape([b, t, 1, k2, h * w]);
@@ -225,12 +225,10 @@ mod tests {
         for ch in 0..c {
             for y in 0..h {
                 for x in 0..w {
-                    let (sy, sx) = (y as isize + dy, x as isize + dx);
-                    let want = if sy >= 0 && sy < h as isize && sx >= 0 && sx < w as isize {
-                        data[((frame * c + ch) * h + sy as usize) * w + sx as usize]
-                    } else {
-                        0.0 // zero padding beyond the tile
-                    };
+                    // beyond the image the edge repeats
+                    let sy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                    let sx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                    let want = data[((frame * c + ch) * h + sy) * w + sx];
                     assert_eq!(out[(ch * h + y) * w + x], want, "({ch},{y},{x})");
                 }
             }

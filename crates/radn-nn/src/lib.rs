@@ -6,6 +6,7 @@ pub mod bench;
 pub mod config;
 pub mod dataset;
 pub mod error;
+pub mod infer;
 pub mod input;
 pub mod kernel;
 pub mod layers;

@@ -155,6 +155,31 @@ impl Denoiser {
         self.net.num_params()
     }
 
+    /// How far (in pixels) an output pixel's value can depend on the input: the halo a tile
+    /// needs so that tiled and whole-frame results agree. Each 3×3 convolution adds 1, each RA
+    /// block adds 2 per recurrent step, kernel application adds k/2 (twice for tKPCN). `None`
+    /// for a UNet, whose pooling grid makes tiles depend on their position.
+    pub fn receptive_radius(&self) -> Option<usize> {
+        let k = self.config.kernel_size / 2;
+        match &self.config.backbone {
+            crate::config::Backbone::Resnet {
+                blocks, ra_after, ..
+            } => {
+                let ra = if self.config.arch == Arch::Ra {
+                    ra_after.len() * 2 * self.config.frames
+                } else {
+                    0
+                };
+                let backbone = 1 + 2 * blocks + ra;
+                Some(match self.config.arch {
+                    Arch::Ra | Arch::Spatial => backbone + 1 + k,
+                    Arch::Tkpcn => backbone + 3 + k + k,
+                })
+            }
+            crate::config::Backbone::Unet { .. } => None,
+        }
+    }
+
     /// The multiple that tile sizes must have.
     pub fn size_multiple(&self) -> usize {
         match &self.net {

@@ -2,7 +2,7 @@
 
 use std::path::PathBuf;
 
-use anyhow::{anyhow, Result};
+use anyhow::{anyhow, Context, Result};
 use radn_core::classic::pipeline::{ClassicDenoiser, ClassicParams};
 use radn_core::frame::Requirements;
 use radn_core::job::SequenceJob;
@@ -11,10 +11,12 @@ use radn_core::sequence::SequencePattern;
 use crate::input::{sequence_files, ChannelArgs};
 
 /// Denoising methods.
-#[derive(clap::ValueEnum, Clone, Copy, Debug)]
+#[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Method {
     /// The non-neural pipeline: flow-refined alignment, robust temporal average, joint NLM, guided filter.
     Classic,
+    /// A kernel-predicting network (the Robust Average network or a baseline) from --model.
+    Network,
 }
 
 /// Storage type of denoised channels.
@@ -63,6 +65,20 @@ pub struct Args {
     /// Storage of the denoised channels: the input's own type, half or float.
     #[arg(long, value_enum, default_value = "same")]
     pub output_precision: Precision,
+    /// Network: the model file (radn SafeTensors with its configuration embedded).
+    #[arg(long)]
+    pub model: Option<PathBuf>,
+    /// Network: kernel threshold t (paper eq. 3); higher keeps more of the input. Default: the model's.
+    #[arg(long)]
+    pub threshold: Option<f32>,
+    /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
+    /// the result does not depend on it); 0 processes whole frames.
+    #[arg(long, default_value_t = 256)]
+    pub tile: usize,
+    /// Network: run the network again on its own output this many times in all (widens the
+    /// temporal reach, paper section 3).
+    #[arg(long, default_value_t = 1)]
+    pub passes: usize,
     #[command(flatten)]
     pub classic: ClassicArgs,
     #[command(flatten)]
@@ -129,20 +145,75 @@ pub fn run(a: Args) -> Result<()> {
     let outputs: Vec<PathBuf> = inputs.iter().map(|(f, _)| out_pattern.path(*f)).collect();
     let mut reader = a.channels.reader(&inputs[0].1, Requirements::DENOISE)?;
     reader.aovs = a.aovs.clone();
-    let job = SequenceJob {
-        inputs,
-        outputs,
-        reader,
-        overwrite: a.overwrite,
-        output_kind: a.output_precision.kind(),
+    let method: Box<dyn radn_core::job::WindowDenoiser> = match a.method {
+        Method::Classic => Box::new(a.classic.denoiser()),
+        Method::Network => Box::new(network_from(&a)?),
     };
-    let method = match a.method {
-        Method::Classic => a.classic.denoiser(),
+    let passes = if a.method == Method::Network {
+        a.passes.max(1)
+    } else {
+        1
     };
-    let pb = crate::progress::frames(job.inputs.len() as u64, "denoising");
+    // earlier passes write to a scratch folder beside the output; the last writes the output
+    let scratch = if passes > 1 {
+        let dir = outputs[0].parent().map(PathBuf::from).unwrap_or_default();
+        std::fs::create_dir_all(&dir)
+            .with_context(|| format!("cannot create '{}'", dir.display()))?;
+        Some(
+            tempfile::Builder::new()
+                .prefix(".radn-passes-")
+                .tempdir_in(&dir)
+                .with_context(|| format!("cannot write to '{}'", dir.display()))?,
+        )
+    } else {
+        None
+    };
+    let mut inputs = inputs;
+    let mut report = radn_core::job::JobReport::default();
     let t = std::time::Instant::now();
-    let report = job.run(&method, |done, _| pb.set_position(done as u64))?;
-    pb.finish_and_clear();
+    // a finished run (every output there) does no work, however many passes
+    let all_done = !a.overwrite && outputs.iter().all(|o| o.exists());
+    if all_done {
+        report.skipped = outputs.len();
+    }
+    for pass in (1..=passes).filter(|_| !all_done) {
+        let last = pass == passes;
+        let outs: Vec<PathBuf> = if last {
+            outputs.clone()
+        } else {
+            let dir = scratch
+                .as_ref()
+                .expect("scratch exists with several passes")
+                .path()
+                .join(format!("pass{pass}"));
+            inputs
+                .iter()
+                .map(|(f, _)| dir.join(format!("frame_{f:08}.exr")))
+                .collect()
+        };
+        let job = SequenceJob {
+            inputs: inputs.clone(),
+            outputs: outs.clone(),
+            reader: reader.clone(),
+            overwrite: a.overwrite || !last,
+            output_kind: if last {
+                a.output_precision.kind()
+            } else {
+                Some(radn_core::exr_file::SampleKind::F32)
+            },
+        };
+        let pb = crate::progress::frames(job.inputs.len() as u64, &format!("pass {pass}/{passes}"));
+        let r = job.run(method.as_ref(), |done, _| pb.set_position(done as u64))?;
+        pb.finish_and_clear();
+        if last {
+            report = r;
+        }
+        inputs = inputs
+            .iter()
+            .zip(&outs)
+            .map(|((f, _), o)| (*f, o.clone()))
+            .collect();
+    }
     println!(
         "denoised {} frames ({} already done, skipped) in {:.1} s -> {}",
         report.written,
@@ -154,4 +225,26 @@ pub fn run(a: Args) -> Result<()> {
         println!("repaired {} NaN/Inf input samples", report.repaired);
     }
     Ok(())
+}
+
+/// Loads the network method from the command-line options.
+fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
+    let path = a.model.as_ref().ok_or_else(|| {
+        anyhow!("--method network needs --model FILE (no trained default model ships yet; --method classic needs none)")
+    })?;
+    let device = radn_nn::burn::tensor::Device::flex();
+    let d = radn_nn::store::load(path, &device)?;
+    let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
+    if let Some(t) = a.threshold {
+        let k = n.denoiser.config.kernel_taps() as f32;
+        if !(0.0..1.0 / k).contains(&t) {
+            return Err(anyhow!(
+                "--threshold {t} must be in [0, 1/K) = [0, {:.5}) for this model",
+                1.0 / k
+            ));
+        }
+        n.threshold = t;
+    }
+    n.tile = a.tile;
+    Ok(n)
 }

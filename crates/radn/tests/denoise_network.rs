@@ -1,0 +1,181 @@
+//! `radn denoise --method network` end to end, with a freshly initialised model file (these
+//! tests check the plumbing — tiling, AOVs, alpha, passes, threshold — not image quality).
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_nn::burn::tensor::Device;
+use radn_nn::{Denoiser, NetConfig};
+
+fn sample() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../samples/cycles-sample")
+}
+
+fn radn(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn model(dir: &Path) -> PathBuf {
+    let p = dir.join("m.safetensors");
+    let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+    radn_nn::store::save(&d, &p).unwrap();
+    p
+}
+
+/// The sample's low level with AOVs that sum to the beauty (float) and a varying alpha.
+fn with_aovs(dir: &Path) -> String {
+    for f in 1..=9 {
+        let mut file = ExrFile::read(sample().join(format!("low/frame_{f:04}.exr"))).unwrap();
+        let n = file.width() * file.height();
+        for c in ["R", "G", "B"] {
+            let name = format!("ViewLayer.Combined.{c}");
+            file.convert_channel(&name, SampleKind::F32);
+            let beauty = file.channel_f32(&name).unwrap();
+            let diffuse: Vec<f32> = beauty
+                .iter()
+                .enumerate()
+                .map(|(i, v)| v * (0.2 + 0.6 * ((i % 5) as f32 / 4.0)))
+                .collect();
+            let specular: Vec<f32> = beauty.iter().zip(&diffuse).map(|(b, d)| b - d).collect();
+            let sum: Vec<f32> = diffuse.iter().zip(&specular).map(|(a, b)| a + b).collect();
+            file.set_channel(&format!("ViewLayer.diffuse.{c}"), &diffuse, SampleKind::F32);
+            file.set_channel(
+                &format!("ViewLayer.specular.{c}"),
+                &specular,
+                SampleKind::F32,
+            );
+            file.set_channel(&name, &sum, SampleKind::F32);
+        }
+        let alpha: Vec<f32> = (0..n)
+            .map(|i| if (i / 176) % 20 < 10 { 1.0 } else { 0.25 })
+            .collect();
+        file.set_channel("ViewLayer.Combined.A", &alpha, SampleKind::F32);
+        let p = dir.join(format!("in/frame_{f:04}.exr"));
+        file.write_atomic(&p).unwrap();
+    }
+    format!("{}/in/frame_####.exr", dir.display())
+}
+
+#[test]
+fn network_denoise_applies_one_kernel_to_beauty_aovs_and_alpha() {
+    let d = tempfile::tempdir().unwrap();
+    let m = model(d.path());
+    let input = with_aovs(d.path());
+    let out = format!("{}/out/f_####.exr", d.path().display());
+    let res = radn(&[
+        "denoise",
+        "--method",
+        "network",
+        "--model",
+        m.to_str().unwrap(),
+        "-i",
+        &input,
+        "-o",
+        &out,
+        "--frames",
+        "4-5",
+        "--aovs",
+        "diffuse,specular",
+        "--tile",
+        "40",
+    ]);
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    let r = ExrFile::read(d.path().join("out/f_0005.exr")).unwrap();
+    let src = ExrFile::read(d.path().join("in/frame_0005.exr")).unwrap();
+    for c in ["R", "G", "B"] {
+        let b = r.channel_f32(&format!("ViewLayer.Combined.{c}")).unwrap();
+        let di = r.channel_f32(&format!("ViewLayer.diffuse.{c}")).unwrap();
+        let sp = r.channel_f32(&format!("ViewLayer.specular.{c}")).unwrap();
+        let worst = b
+            .iter()
+            .zip(di.iter().zip(&sp))
+            .map(|(b, (d, s))| ((d + s) - b).abs() / b.abs().max(1e-3))
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst < 1e-4,
+            "{c}: the denoised AOVs no longer sum to the denoised beauty ({worst})"
+        );
+        assert_ne!(
+            b,
+            src.channel_f32(&format!("ViewLayer.Combined.{c}")).unwrap()
+        );
+    }
+    let a = r.channel_f32("ViewLayer.Combined.A").unwrap();
+    assert_ne!(
+        a,
+        src.channel_f32("ViewLayer.Combined.A").unwrap(),
+        "alpha was not denoised"
+    );
+    // a box-like kernel keeps alpha within its input range
+    assert!(a.iter().all(|v| (0.24..=1.01).contains(v)));
+}
+
+#[test]
+fn passes_threshold_and_resume() {
+    let d = tempfile::tempdir().unwrap();
+    let m = model(d.path());
+    let input = format!("{}/low/frame_####.exr", sample().display());
+    let one = format!("{}/p1/f_####.exr", d.path().display());
+    let two = format!("{}/p2/f_####.exr", d.path().display());
+    let ms = m.to_str().unwrap();
+    assert!(radn(&[
+        "denoise", "--method", "network", "--model", ms, "-i", &input, "-o", &one, "--frames",
+        "3-7"
+    ])
+    .status
+    .success());
+    let res = radn(&[
+        "denoise", "--method", "network", "--model", ms, "-i", &input, "-o", &two, "--frames",
+        "3-7", "--passes", "2",
+    ]);
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    let a = ExrFile::read(d.path().join("p1/f_0005.exr"))
+        .unwrap()
+        .channel_f32("ViewLayer.Combined.G")
+        .unwrap();
+    let b = ExrFile::read(d.path().join("p2/f_0005.exr"))
+        .unwrap()
+        .channel_f32("ViewLayer.Combined.G")
+        .unwrap();
+    assert_ne!(a, b, "a second pass changed nothing");
+    // no scratch folder of the passes is left behind
+    assert_eq!(std::fs::read_dir(d.path().join("p2")).unwrap().count(), 5);
+    // resumption: nothing to do the second time
+    let res = radn(&[
+        "denoise", "--method", "network", "--model", ms, "-i", &input, "-o", &two, "--frames",
+        "3-7", "--passes", "2",
+    ]);
+    assert!(String::from_utf8_lossy(&res.stdout).contains("denoised 0 frames (5 already done"));
+    // thresholds outside [0, 1/K) are refused with the range
+    let res = radn(&[
+        "denoise",
+        "--method",
+        "network",
+        "--model",
+        ms,
+        "-i",
+        &input,
+        "-o",
+        &one,
+        "--threshold",
+        "0.5",
+        "--overwrite",
+    ]);
+    assert!(!res.status.success());
+    assert!(String::from_utf8_lossy(&res.stderr).contains("must be in [0, 1/K)"));
+    // without a model the network method says what to do
+    let res = radn(&["denoise", "--method", "network", "-i", &input, "-o", &one]);
+    assert!(String::from_utf8_lossy(&res.stderr).contains("--model"));
+}
