@@ -62,6 +62,46 @@ impl NetworkDenoiser {
                 values.extend_from_slice(a.data());
             }
         }
+        let out = self.run_tiled(win, &values, chans, |p, v| p.apply(v));
+        let color = out.select_channels(0, 3);
+        let mut at = 3;
+        let aovs = aov_ch
+            .iter()
+            .map(|&n| {
+                let p = out.select_channels(at, n);
+                at += n;
+                p
+            })
+            .collect();
+        let alpha = has_alpha.then(|| out.select_channels(at, 1));
+        Denoised { color, alpha, aovs }
+    }
+}
+
+impl NetworkDenoiser {
+    /// Per-pixel kernel weight of each window frame (temporal utilisation, paper Table 1 and
+    /// Fig. 6): `frames` planes summing to 1 at every pixel.
+    pub fn utilization(&self, win: &AlignedWindow) -> Vec<Plane> {
+        let t = win.frames.len();
+        let ones = vec![0.0f32; t * win.centre().color.pixels()];
+        let mass = self.run_tiled(win, &ones, 1, |p, _| p.frame_mass(t));
+        (0..t).map(|k| mass.select_channels(k, 1)).collect()
+    }
+
+    /// Runs the network tile by tile (each tile with a halo of the receptive field, clamped to
+    /// the image, so the result does not depend on the tiling) and assembles `out_channels`
+    /// planes from `f(prediction, values)`, `values` being `[1, T, chans, h, w]` crops of
+    /// `values` (`[T, chans, H, W]`).
+    fn run_tiled(
+        &self,
+        win: &AlignedWindow,
+        values: &[f32],
+        chans: usize,
+        f: impl Fn(&crate::model::Prediction, Tensor<5>) -> Tensor<4>,
+    ) -> Plane {
+        let c = win.centre();
+        let (w, h) = (c.color.width(), c.color.height());
+        let t = win.frames.len();
         let feats = features(win);
         let halo = self.denoiser.receptive_radius();
         let (tw, th) = match (halo, self.tile) {
@@ -69,15 +109,13 @@ impl NetworkDenoiser {
             _ => (w, h), // whole frame: UNets, or tiling switched off
         };
         let halo = halo.unwrap_or(0);
-        let mut out = Plane::zeros(w, h, chans);
+        let mut out: Option<Plane> = None;
         let mut y0 = 0;
         while y0 < h {
             let y1 = (y0 + th).min(h);
             let mut x0 = 0;
             while x0 < w {
                 let x1 = (x0 + tw).min(w);
-                // the tile plus its halo, clamped to the image (so borders see the same zero
-                // padding as a whole-frame pass)
                 let (rx0, ry0) = (x0.saturating_sub(halo), y0.saturating_sub(halo));
                 let (rx1, ry1) = ((x1 + halo).min(w), (y1 + halo).min(h));
                 let (rw, rh) = (rx1 - rx0, ry1 - ry0);
@@ -100,12 +138,14 @@ impl NetworkDenoiser {
                     &self.device,
                 );
                 let v = Tensor::<5>::from_data(
-                    TensorData::new(crop(&values, t * chans), [1, t, chans, rh, rw]),
+                    TensorData::new(crop(values, t * chans), [1, t, chans, rh, rw]),
                     &self.device,
                 );
-                let res = self.denoiser.predict(x, self.threshold).apply(v);
+                let res = f(&self.denoiser.predict(x, self.threshold), v);
+                let oc = res.dims()[1];
                 let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
-                for ch in 0..chans {
+                let out = out.get_or_insert_with(|| Plane::zeros(w, h, oc));
+                for ch in 0..oc {
                     for y in y0..y1 {
                         let src = &res[ch * rw * rh + (y - ry0) * rw + (x0 - rx0)..][..x1 - x0];
                         out.channel_mut(ch)[y * w + x0..y * w + x1].copy_from_slice(src);
@@ -115,18 +155,7 @@ impl NetworkDenoiser {
             }
             y0 = y1;
         }
-        let color = out.select_channels(0, 3);
-        let mut at = 3;
-        let aovs = aov_ch
-            .iter()
-            .map(|&n| {
-                let p = out.select_channels(at, n);
-                at += n;
-                p
-            })
-            .collect();
-        let alpha = has_alpha.then(|| out.select_channels(at, 1));
-        Denoised { color, alpha, aovs }
+        out.expect("at least one tile")
     }
 }
 

@@ -179,3 +179,46 @@ fn passes_threshold_and_resume() {
     let res = radn(&["denoise", "--method", "network", "-i", &input, "-o", &one]);
     assert!(String::from_utf8_lossy(&res.stderr).contains("--model"));
 }
+
+#[test]
+fn utilization_table_sums_to_one_and_writes_heat_maps() {
+    let d = tempfile::tempdir().unwrap();
+    let m = model(d.path());
+    let input = format!("{}/low/frame_####.exr", sample().display());
+    let json = d.path().join("u/u.json");
+    let maps = d.path().join("maps");
+    let res = radn(&[
+        "eval",
+        "--utilization",
+        "--model",
+        m.to_str().unwrap(),
+        "-i",
+        &input,
+        "--frames",
+        "4-5",
+        "--json",
+        json.to_str().unwrap(),
+        "--heatmaps",
+        maps.to_str().unwrap(),
+    ]);
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let avg: Vec<f64> = v["avg"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| x.as_f64().unwrap())
+        .collect();
+    assert_eq!(avg.len(), 5);
+    assert!((avg.iter().sum::<f64>() - 1.0).abs() < 1e-4, "{avg:?}");
+    // a freshly initialised kernel is close to a box filter: every frame carries ~1/5
+    assert!(avg.iter().all(|a| (a - 0.2).abs() < 0.05), "{avg:?}");
+    for f in [4, 5] {
+        let png = std::fs::read(maps.join(format!("centre_share_{f:04}.png"))).unwrap();
+        assert_eq!(&png[1..4], b"PNG");
+    }
+}

@@ -14,11 +14,24 @@ use crate::input::{sequence_files, ChannelArgs};
 #[derive(clap::Args)]
 pub struct Args {
     /// The sequence to judge: a folder of numbered EXRs or a pattern.
-    #[arg(long)]
-    pub result: String,
+    #[arg(long, required_unless_present = "utilization")]
+    pub result: Option<String>,
     /// The reference sequence (folder or pattern); frames are matched by number.
+    #[arg(long, required_unless_present = "utilization")]
+    pub reference: Option<String>,
+    /// Instead: temporal utilisation of a network (paper Table 1, Fig. 6) on --input: the mean
+    /// and max kernel weight of each window frame, and heat maps of the centre frame's share.
+    #[arg(long, requires_all = ["model", "input"])]
+    pub utilization: bool,
+    /// For --utilization: the model file.
     #[arg(long)]
-    pub reference: String,
+    pub model: Option<PathBuf>,
+    /// For --utilization: the noisy input sequence.
+    #[arg(short, long)]
+    pub input: Option<String>,
+    /// For --utilization: write heat maps (PNG) of the centre frame's weight here.
+    #[arg(long)]
+    pub heatmaps: Option<PathBuf>,
     /// Only these frames (first-last[xstep]).
     #[arg(long)]
     pub frames: Option<String>,
@@ -55,8 +68,15 @@ pub struct FrameMetrics {
 
 /// Computes and prints the metrics.
 pub fn run(a: Args) -> Result<()> {
-    let result = sequence_files(&a.result, a.frames.as_deref())?;
-    let reference = sequence_files(&a.reference, None)?;
+    if a.utilization {
+        return crate::cmd::utilization::run(&a);
+    }
+    let (result_spec, reference_spec) = (
+        a.result.clone().expect("clap requires it"),
+        a.reference.clone().expect("clap requires it"),
+    );
+    let result = sequence_files(&result_spec, a.frames.as_deref())?;
+    let reference = sequence_files(&reference_spec, None)?;
     let pairs: Vec<(i64, PathBuf, PathBuf)> = result
         .iter()
         .filter_map(|(f, p)| {
@@ -68,9 +88,7 @@ pub fn run(a: Args) -> Result<()> {
         .collect();
     if pairs.is_empty() {
         return Err(anyhow!(
-            "no frame number is in both '{}' and '{}'",
-            a.result,
-            a.reference
+            "no frame number is in both '{result_spec}' and '{reference_spec}'"
         ));
     }
     let rreader = a.channels.reader(&pairs[0].1, Requirements::COLOR_ONLY)?;
@@ -144,7 +162,7 @@ pub fn run(a: Args) -> Result<()> {
     if let Some(p) = &a.json {
         let mut m = serde_json::to_value(&mean)?;
         m["frame"] = serde_json::Value::Null;
-        let v = serde_json::json!({"result": a.result, "reference": a.reference, "frames": rows, "mean": m});
+        let v = serde_json::json!({"result": result_spec, "reference": reference_spec, "frames": rows, "mean": m});
         write_atomic(p, serde_json::to_string_pretty(&v)?.as_bytes())?;
     }
     if let Some(p) = &a.csv {

@@ -7,4 +7,5 @@ pub mod inspect;
 pub mod prepare;
 pub mod pseudoref;
 pub mod train;
+pub mod utilization;
 pub mod warp;
