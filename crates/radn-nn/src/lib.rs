@@ -16,6 +16,7 @@ pub mod objective;
 pub mod ra_block;
 pub mod store;
 pub mod train;
+pub mod vgg;
 
 pub use config::NetConfig;
 pub use error::{NnError, Result};

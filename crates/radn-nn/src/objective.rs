@@ -16,6 +16,27 @@ pub enum PixelLoss {
     Smape,
     /// Mean absolute error.
     L1,
+    /// Paper eq. 6: `(VGG19₅₄ + VGG19₃₄) · SMAPE` (needs VGG19 weights).
+    Vgg,
+}
+
+/// A ready-to-use loss: a pixel loss, or the perceptual loss with its frozen VGG19.
+pub enum LossFn {
+    /// SMAPE or L1.
+    Pixel(PixelLoss),
+    /// The perceptual loss.
+    Perceptual(Box<crate::vgg::Vgg19>),
+}
+
+impl LossFn {
+    /// The loss of `x` against `y`.
+    pub fn eval(&self, x: Tensor<4>, y: Tensor<4>) -> Tensor<1> {
+        match self {
+            LossFn::Pixel(PixelLoss::L1) => l1(x, y),
+            LossFn::Pixel(_) => smape(x, y),
+            LossFn::Perceptual(vgg) => vgg.loss(x, y),
+        }
+    }
 }
 
 /// How the window's kernels are turned into loss terms.
@@ -91,14 +112,11 @@ pub fn objective(
     values: Tensor<5>,
     target: Tensor<4>,
     mode: LossMode,
-    loss: PixelLoss,
+    loss: &LossFn,
     full_weight: f32,
     frames: usize,
 ) -> Tensor<1> {
-    let l = |x: Tensor<4>| match loss {
-        PixelLoss::Smape => smape(x, target.clone()),
-        PixelLoss::L1 => l1(x, target.clone()),
-    };
+    let l = |x: Tensor<4>| loss.eval(x, target.clone());
     match mode {
         LossMode::Spatial => l(pred.apply(values)),
         LossMode::Temporal => {

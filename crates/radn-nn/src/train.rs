@@ -4,6 +4,8 @@
 //! the step number; the optimizer state is saved with the weights).
 
 use std::io::Write;
+
+use burn::module::Module;
 use std::path::{Path, PathBuf};
 
 use burn::optim::{AdamConfig, GradientsParams};
@@ -15,7 +17,7 @@ use crate::config::{NetConfig, INPUT_CHANNELS};
 use crate::dataset::{SplitMix, Tile, TileDataset};
 use crate::error::{NnError, Result};
 use crate::model::Denoiser;
-use crate::objective::{objective, sample_pair, LossMode, PixelLoss};
+use crate::objective::{objective, sample_pair, LossFn, LossMode, PixelLoss};
 use crate::store;
 
 /// A training run's settings (TOML).
@@ -42,9 +44,12 @@ pub struct TrainConfig {
     /// Linear warm-up steps before cosine decay to 5% of the peak.
     #[serde(default = "d_warmup")]
     pub warmup: usize,
-    /// Per-pixel loss.
+    /// Per-pixel loss: smape, l1, or vgg (paper eq. 6; needs `vgg_weights`).
     #[serde(default = "d_loss")]
     pub loss: PixelLoss,
+    /// VGG19 ImageNet weights (SafeTensors, torchvision layout) for `loss = "vgg"`.
+    #[serde(default)]
+    pub vgg_weights: Option<PathBuf>,
     /// Temporal (the paper's conversion) or spatial loss.
     #[serde(default = "d_mode")]
     pub mode: LossMode,
@@ -201,6 +206,7 @@ pub struct Trainer {
     optim: burn::optim::ModuleOptimizer,
     /// Progress.
     pub state: TrainState,
+    loss_fn: LossFn,
     train: TileDataset,
     val: TileDataset,
     device: Device,
@@ -278,12 +284,27 @@ impl Trainer {
                 },
             )
         };
+        let loss_fn = match config.loss {
+            PixelLoss::Vgg => {
+                let p = config.vgg_weights.as_ref().ok_or_else(|| {
+                    NnError::Config(
+                        "loss = \"vgg\" needs vgg_weights = \"path/to/vgg19.safetensors\"".into(),
+                    )
+                })?;
+                // frozen: it shapes the network's gradients but is never trained
+                LossFn::Perceptual(Box::new(
+                    crate::vgg::Vgg19::load(&base.join(p), device)?.no_grad(),
+                ))
+            }
+            l => LossFn::Pixel(l),
+        };
         Ok(Self {
             config,
             out: out.to_path_buf(),
             denoiser,
             optim,
             state,
+            loss_fn,
             train,
             val,
             device: device.clone(),
@@ -330,7 +351,7 @@ impl Trainer {
             b.values,
             b.target,
             self.config.mode,
-            self.config.loss,
+            &self.loss_fn,
             self.config.full_weight,
             frames,
         );
@@ -366,7 +387,7 @@ impl Trainer {
                 b.values.clone(),
                 b.target.clone(),
                 self.config.mode,
-                self.config.loss,
+                &self.loss_fn,
                 self.config.full_weight,
                 frames,
             )

@@ -164,3 +164,25 @@ fn a_few_steps_lower_the_validation_loss() {
     let csv = std::fs::read_to_string(d.path().join("run/metrics.csv")).unwrap();
     assert!(csv.lines().filter(|l| l.contains(",val,")).count() >= 8);
 }
+
+#[test]
+fn the_perceptual_loss_trains_with_user_supplied_vgg_weights() {
+    let d = tempfile::tempdir().unwrap();
+    tiles(&d.path().join("train"), 1, 1);
+    tiles(&d.path().join("val"), 2, 1);
+    let device = Device::flex().autodiff();
+    radn_nn::vgg::Vgg19::new(&Device::flex())
+        .save_torchvision(&d.path().join("vgg19.safetensors"))
+        .unwrap();
+    let text = "model = \"small\"\ntrain = \"train\"\nval = \"val\"\nbatch = 1\nsteps = 2\nvalidate_every = 2\nval_tiles = 1\nloss = \"vgg\"\n";
+    let missing = TrainConfig::parse(text).unwrap();
+    let e = Trainer::new(missing, d.path(), &d.path().join("x"), false, &device)
+        .err()
+        .expect("needs weights")
+        .to_string();
+    assert!(e.contains("vgg_weights"), "{e}");
+    let cfg = TrainConfig::parse(&format!("{text}vgg_weights = \"vgg19.safetensors\"\n")).unwrap();
+    let mut t = Trainer::new(cfg, d.path(), &d.path().join("run"), false, &device).unwrap();
+    let loss = t.step().unwrap();
+    assert!(loss.is_finite() && loss > 0.0, "{loss}");
+}
