@@ -201,7 +201,7 @@ mod tests {
             values.clone(),
             target.clone(),
             LossMode::Temporal,
-            PixelLoss::L1,
+            &LossFn::Pixel(PixelLoss::L1),
             0.0,
             5,
         )
@@ -213,7 +213,7 @@ mod tests {
             values.clone(),
             target.clone(),
             LossMode::Spatial,
-            PixelLoss::L1,
+            &LossFn::Pixel(PixelLoss::L1),
             0.0,
             5,
         )
@@ -224,7 +224,7 @@ mod tests {
             values,
             target,
             LossMode::Temporal,
-            PixelLoss::L1,
+            &LossFn::Pixel(PixelLoss::L1),
             0.5,
             5,
         )
