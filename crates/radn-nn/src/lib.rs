@@ -13,6 +13,7 @@ pub mod layers;
 pub mod loss;
 pub mod model;
 pub mod objective;
+pub mod plot;
 pub mod ra_block;
 pub mod store;
 pub mod train;

@@ -530,6 +530,10 @@ impl Trainer {
                     store::save(&self.denoiser, &self.out.join("best.safetensors"))?;
                 }
                 self.checkpoint()?;
+                crate::plot::training_curves(
+                    &self.out.join("metrics.csv"),
+                    &self.out.join("curves.png"),
+                )?;
                 Some(v)
             } else {
                 None

@@ -165,6 +165,8 @@ fn a_few_steps_lower_the_validation_loss() {
     assert!(after < 0.97 * before, "validation loss {before} -> {after}");
     let csv = std::fs::read_to_string(d.path().join("run/metrics.csv")).unwrap();
     assert!(csv.lines().filter(|l| l.contains(",val,")).count() >= 12);
+    let png = std::fs::read(d.path().join("run/curves.png")).expect("curves.png after validation");
+    assert_eq!(&png[1..4], b"PNG");
 }
 
 #[test]
