@@ -133,7 +133,7 @@ impl Denoiser {
 
     /// Draws every parameter's initial value now. burn initialises parameters lazily, on first
     /// use, so without this the random draws would happen in whatever order the parameters are
-    /// first touched, and a seeded run would not be reproducible.
+    /// first touched, interleaved with other random work.
     pub fn materialize(&self) {
         use burn::store::ModuleSnapshot;
         let mut store = burn::store::SafetensorsStore::from_bytes(None);
