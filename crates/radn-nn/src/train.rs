@@ -275,8 +275,12 @@ impl Trainer {
                 })?;
             (d, optim, state)
         } else {
+            // initial weights drawn right after seeding, all at once (burn initialises lazily)
+            device.seed(config.seed);
+            let d = Denoiser::new(net_cfg, device);
+            d.materialize();
             (
-                Denoiser::new(net_cfg, device),
+                d,
                 AdamConfig::new().init(),
                 TrainState {
                     step: 0,
