@@ -193,30 +193,33 @@ fn in_disc(x: f32, y: f32, t: i32) -> f32 {
     ((x - c.0).powi(2) + (y - c.1).powi(2)).sqrt() - DISC_R
 }
 
+/// A textured disc moving by `DISC_V` per frame over a static textured wall. The background
+/// does not move, but where the disc covers it in another frame, that frame's motion is the
+/// disc's.
+fn disc_scene(x: f32, y: f32, t: i32) -> Sample {
+    if in_disc(x, y, t) < 0.0 {
+        let c = disc_centre(t);
+        Sample {
+            uv: (x - c.0 + 500.0, y - c.1 + 300.0),
+            tint: 0.6,
+            depth: 2.0,
+            prev: (-DISC_V.0, -DISC_V.1),
+            next: DISC_V,
+        }
+    } else {
+        Sample {
+            uv: (x, y),
+            tint: 1.0,
+            depth: 5.0,
+            prev: (0.0, 0.0),
+            next: (0.0, 0.0),
+        }
+    }
+}
+
 #[test]
 fn moving_object_over_static_background() {
-    let scene = |x: f32, y: f32, t: i32| {
-        if in_disc(x, y, t) < 0.0 {
-            let c = disc_centre(t);
-            Sample {
-                uv: (x - c.0 + 500.0, y - c.1 + 300.0),
-                tint: 0.6,
-                depth: 2.0,
-                prev: (-DISC_V.0, -DISC_V.1),
-                next: DISC_V,
-            }
-        } else {
-            // the background does not move, but where the disc covers it in the other frame,
-            // that frame's motion belongs to the disc
-            Sample {
-                uv: (x, y),
-                tint: 1.0,
-                depth: 5.0,
-                prev: (0.0, 0.0),
-                next: (0.0, 0.0),
-            }
-        }
-    };
+    let scene = disc_scene;
     let win = align(&scene, false);
     // a pixel of the centre frame is visible in frame `o` if the same surface is there; keep 2 px
     // away from the disc's silhouettes in both frames, where bilinear lookups mix surfaces
@@ -248,26 +251,7 @@ fn moving_object_over_static_background() {
 
 #[test]
 fn centre_mixing_replaces_hidden_pixels_with_the_centre() {
-    let scene = |x: f32, y: f32, t: i32| {
-        if in_disc(x, y, t) < 0.0 {
-            let c = disc_centre(t);
-            Sample {
-                uv: (x - c.0, y - c.1),
-                tint: 0.6,
-                depth: 2.0,
-                prev: (-DISC_V.0, -DISC_V.1),
-                next: DISC_V,
-            }
-        } else {
-            Sample {
-                uv: (x, y),
-                tint: 1.0,
-                depth: 5.0,
-                prev: (0.0, 0.0),
-                next: (0.0, 0.0),
-            }
-        }
-    };
+    let scene = disc_scene;
     let win = align(&scene, true);
     let centre = &win.centre().color;
     let mut n = 0;

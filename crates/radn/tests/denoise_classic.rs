@@ -2,7 +2,7 @@
 
 mod common;
 
-use common::{radn, sample, with_aovs};
+use common::{assert_aovs_sum_to_beauty, radn, sample, with_aovs};
 use radn_core::exr_file::ExrFile;
 use radn_core::metrics::psnr;
 use radn_core::Plane;
@@ -86,27 +86,7 @@ fn aovs_that_sum_to_the_beauty_still_do_and_alpha_is_denoised() {
     );
     let res = ExrFile::read(d.path().join("out/frame_0005.exr")).unwrap();
     let src = ExrFile::read(d.path().join("in/frame_0005.exr")).unwrap();
-    for c in ["R", "G", "B"] {
-        let b = res.channel_f32(&format!("ViewLayer.Combined.{c}")).unwrap();
-        let di = res.channel_f32(&format!("ViewLayer.diffuse.{c}")).unwrap();
-        let sp = res.channel_f32(&format!("ViewLayer.specular.{c}")).unwrap();
-        // relative to the magnitude of the terms summed: where denoised AOVs of opposite sign
-        // cancel, f32 rounding is relative to them, not to their small sum
-        let worst = b
-            .iter()
-            .zip(di.iter().zip(&sp))
-            .map(|(b, (d, s))| ((d + s) - b).abs() / (d.abs() + s.abs()).max(b.abs()).max(1e-3))
-            .fold(0.0f32, f32::max);
-        assert!(
-            worst < 1e-4,
-            "channel {c}: AOV sum differs from the beauty by {worst} (relative)"
-        );
-        // and the AOVs were really filtered
-        assert_ne!(
-            di,
-            src.channel_f32(&format!("ViewLayer.diffuse.{c}")).unwrap()
-        );
-    }
+    assert_aovs_sum_to_beauty(&res, &src);
     let a = res.channel_f32("ViewLayer.Combined.A").unwrap();
     assert_ne!(
         a,

@@ -55,3 +55,38 @@ pub fn with_aovs(dir: &Path, low_alpha: f32) -> String {
     }
     format!("{}/in/frame_####.exr", dir.display())
 }
+
+/// Asserts that the denoised `diffuse` and `specular` AOVs of `res` still sum to its denoised
+/// beauty (1e-4, relative to the magnitude of the terms summed: where AOVs of opposite sign
+/// cancel, f32 rounding is relative to them, not to their small sum), and that the beauty and
+/// the AOVs were really filtered (they differ from `src`).
+pub fn assert_aovs_sum_to_beauty(res: &ExrFile, src: &ExrFile) {
+    for c in ["R", "G", "B"] {
+        let get =
+            |f: &ExrFile, layer: &str| f.channel_f32(&format!("ViewLayer.{layer}.{c}")).unwrap();
+        let (b, di, sp) = (
+            get(res, "Combined"),
+            get(res, "diffuse"),
+            get(res, "specular"),
+        );
+        let worst = b
+            .iter()
+            .zip(di.iter().zip(&sp))
+            .map(|(b, (d, s))| ((d + s) - b).abs() / (d.abs() + s.abs()).max(b.abs()).max(1e-3))
+            .fold(0.0f32, f32::max);
+        assert!(
+            worst < 1e-4,
+            "channel {c}: the denoised AOVs no longer sum to the denoised beauty ({worst})"
+        );
+        assert_ne!(
+            b,
+            get(src, "Combined"),
+            "channel {c}: the beauty was not denoised"
+        );
+        assert_ne!(
+            di,
+            get(src, "diffuse"),
+            "channel {c}: the AOVs were not denoised"
+        );
+    }
+}
