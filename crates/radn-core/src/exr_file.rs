@@ -82,6 +82,31 @@ impl ExrFile {
         Ok(file)
     }
 
+    /// The pixel size of a file's first part from its header alone (no pixel data decoded), so a
+    /// whole sequence can be checked before hours of work start; failures name the file.
+    pub fn read_size(path: impl AsRef<Path>) -> Result<(usize, usize)> {
+        let path = path.as_ref().to_path_buf();
+        let mut magic = [0u8; 4];
+        let mut f = std::fs::File::open(&path).map_err(|source| Error::Open {
+            path: path.clone(),
+            source,
+        })?;
+        if f.read_exact(&mut magic).is_err() || magic != EXR_MAGIC {
+            return Err(Error::NotExr { path });
+        }
+        drop(f);
+        let meta =
+            exr::meta::MetaData::read_from_file(&path, false).map_err(|e| Error::Decode {
+                path: path.clone(),
+                detail: describe_exr_error(e),
+            })?;
+        let h = meta.headers.first().ok_or_else(|| Error::Decode {
+            path: path.clone(),
+            detail: "the file has no parts".into(),
+        })?;
+        Ok((h.layer_size.width(), h.layer_size.height()))
+    }
+
     /// Builds a new single-part file from named planes of one size.
     pub fn from_channels(
         path: impl AsRef<Path>,

@@ -64,7 +64,8 @@ pub struct JobReport {
 }
 
 impl SequenceJob {
-    /// Checks every output before any work: none may be an input, every folder must be writable.
+    /// Checks before any work: no output may be an input, every output folder must be writable,
+    /// and the inputs must be EXR files of one size (read from their headers).
     pub fn validate(&self) -> Result<()> {
         let inputs: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
         for out in &self.outputs {
@@ -78,6 +79,21 @@ impl SequenceJob {
         dirs.dedup();
         for d in dirs {
             ensure_writable_dir(&d)?;
+        }
+        // every input is an EXR of one size (headers only): fail now, not after hours of work
+        let mut first: Option<(usize, usize)> = None;
+        for (_, p) in &self.inputs {
+            let (w, h) = ExrFile::read_size(p)?;
+            let (ew, eh) = *first.get_or_insert((w, h));
+            if (w, h) != (ew, eh) {
+                return Err(Error::SizeMismatch {
+                    path: p.clone(),
+                    expected_w: ew,
+                    expected_h: eh,
+                    found_w: w,
+                    found_h: h,
+                });
+            }
         }
         Ok(())
     }

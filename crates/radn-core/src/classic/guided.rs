@@ -84,11 +84,17 @@ pub fn guided_filter(guide: &Plane, signals: &[&Plane], p: &GuidedParams) -> Vec
                                     - mean_i.data()[a * n + i] as f64 * mp
                             })
                             .collect();
-                        let a = chol_solve(&chol, k, &cov);
-                        let b = mp
+                        let mut a = chol_solve(&chol, k, &cov);
+                        let mut b = mp
                             - (0..k)
                                 .map(|q| a[q] * mean_i.data()[q * n + i] as f64)
                                 .sum::<f64>();
+                        // a numerically singular window (e.g. f32 cancellation in the box
+                        // means of a very bright guide): fall back to the local mean
+                        if !(b.is_finite() && a.iter().all(|v| v.is_finite() && v.abs() < 1e6)) {
+                            a.iter_mut().for_each(|v| *v = 0.0);
+                            b = mp;
+                        }
                         for q in 0..k {
                             out[c * (k + 1) + q] = a[q] as f32;
                         }
@@ -218,5 +224,24 @@ mod tests {
         for i in 0..400 {
             assert!((out[0].data()[i] + out[1].data()[i] - out[2].data()[i]).abs() < 1e-3);
         }
+    }
+
+    #[test]
+    fn a_very_bright_nearly_flat_guide_gives_finite_output() {
+        // guide channels near 330 with tiny variations: f32 box means cancel to a variance
+        // of the wrong sign (found on a Cycles emitter's albedo)
+        let (w, h) = (64, 64);
+        let guide = Plane::from_fn(w, h, 6, |x, y, c| {
+            if c < 3 {
+                330.0 + ((x * 7 + y * 13 + c) % 5) as f32 * 1e-4
+            } else {
+                ((x + y + c) % 3) as f32 * 1e-5
+            }
+        });
+        let sig = Plane::from_fn(w, h, 3, |x, y, c| ((x * y + c) % 11) as f32);
+        let out = guided_filter(&guide, &[&sig], &GuidedParams::default());
+        assert!(out[0].data().iter().all(|v| v.is_finite()));
+        // and stays within the signal's range (the local-mean fallback is convex)
+        assert!(out[0].data().iter().all(|&v| (-1.0..=11.0).contains(&v)));
     }
 }

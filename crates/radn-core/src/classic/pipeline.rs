@@ -230,6 +230,20 @@ pub fn denoise_window(window: &[Option<&Frame>], p: &ClassicParams) -> ClassicRe
 
 /// The guided filter's guide: prefiltered albedo and normal stacked.
 fn features(albedo: Option<&Plane>, normal: Option<&Plane>) -> Option<Plane> {
+    // the guide describes edges; renderers write albedo far above 1 on emitters and some
+    // shaders, which makes the guided filter's local regressions ill-conditioned: clamp it
+    let clamped = albedo.map(|a| {
+        let mut a = a.clone();
+        a.data_mut().iter_mut().for_each(|v| {
+            *v = if v.is_finite() {
+                v.clamp(0.0, 1.0)
+            } else {
+                0.0
+            }
+        });
+        a
+    });
+    let albedo = clamped.as_ref();
     match (albedo, normal) {
         (Some(a), Some(n)) => Some(Plane::concat(&[a, n])),
         (Some(a), None) => Some(a.clone()),
