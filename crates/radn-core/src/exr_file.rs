@@ -354,11 +354,7 @@ impl ExrFile {
             path: dir.clone(),
             source,
         })?;
-        let tmp = tempfile::Builder::new()
-            .prefix(".radn-")
-            .suffix(".exr.tmp")
-            .tempfile_in(&dir)
-            .map_err(|source| Error::Write {
+        let tmp = crate::output::output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| Error::Write {
                 path: dir.clone(),
                 source,
             })?;
@@ -452,6 +448,22 @@ mod tests {
         assert_eq!(g.channel_f32("denoised.R").unwrap()[11], 22.0);
         // no temporary file is left behind
         assert_eq!(std::fs::read_dir(dir.path()).unwrap().count(), 1);
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn written_files_get_the_permissions_of_a_plainly_created_file() {
+        use std::os::unix::fs::PermissionsExt;
+        let dir = tempfile::tempdir().unwrap();
+        let plain = dir.path().join("plain");
+        std::fs::write(&plain, b"x").unwrap();
+        let p = dir.path().join("a.exr");
+        ExrFile::from_channels(&p, 2, 2, vec![("R".into(), ramp(4, 1.0))], SampleKind::F32)
+            .write_atomic(&p)
+            .unwrap();
+        let mode = |p: &Path| std::fs::metadata(p).unwrap().permissions().mode() & 0o777;
+        // not tempfile's private 0600: other users of a farm must read the result
+        assert_eq!(mode(&p), mode(&plain));
     }
 
     #[test]

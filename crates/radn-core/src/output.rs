@@ -18,6 +18,24 @@ pub fn ensure_not_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
     Ok(())
 }
 
+/// A temporary file in `dir` for an output that is renamed into place once complete. It gets
+/// the permissions a plainly created file would (0666 less the umask) rather than tempfile's
+/// private 0600, so results stay readable by the rest of a pipeline (compositors, other users).
+pub fn output_tempfile(
+    dir: &Path,
+    prefix: &str,
+    suffix: &str,
+) -> std::io::Result<tempfile::NamedTempFile> {
+    let mut b = tempfile::Builder::new();
+    b.prefix(prefix).suffix(suffix);
+    #[cfg(unix)]
+    {
+        use std::os::unix::fs::PermissionsExt;
+        b.permissions(std::fs::Permissions::from_mode(0o666));
+    }
+    b.tempfile_in(dir)
+}
+
 /// Creates the folder of `output` if needed and proves it writable by creating and removing a
 /// temporary file in it, so a run fails before any work instead of after it.
 pub fn ensure_writable_dir(output: &Path) -> Result<()> {

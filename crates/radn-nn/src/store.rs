@@ -26,11 +26,7 @@ pub fn save(denoiser: &Denoiser, path: &Path) -> Result<()> {
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
-    let tmp = tempfile::Builder::new()
-        .prefix(".radn-model-")
-        .suffix(".safetensors")
-        .tempfile_in(dir)
-        .map_err(|e| err(e.to_string()))?;
+    let tmp = radn_core::output::output_tempfile(dir, ".radn-model-", ".safetensors").map_err(|e| err(e.to_string()))?;
     let mut store = SafetensorsStore::from_file(tmp.path())
         .metadata(CONFIG_KEY, denoiser.config.to_toml())
         .metadata(FORMAT_KEY, FORMAT)
@@ -53,30 +49,73 @@ pub fn read_config(path: &Path) -> Result<NetConfig> {
     let mut len = [0u8; 8];
     f.read_exact(&mut len)
         .map_err(|_| err("not a model file (too short)".into()))?;
-    let len = u64::from_le_bytes(len);
-    if len > 100 << 20 {
-        return Err(err("not a model file (bad SafeTensors header)".into()));
-    }
-    let mut header = vec![0u8; len as usize];
+    let n = header_len(&len).map_err(err)?;
+    let mut header = vec![0u8; n];
     f.read_exact(&mut header)
         .map_err(|_| err("the file is truncated".into()))?;
-    let json: serde_json::Value = serde_json::from_slice(&header)
-        .map_err(|_| err("not a model file (bad SafeTensors header)".into()))?;
+    config_from_header(&header).map_err(err)
+}
+
+/// The SafeTensors header length from the file's first 8 bytes, refused when implausible.
+fn header_len(first: &[u8]) -> std::result::Result<usize, String> {
+    let len = u64::from_le_bytes(
+        first
+            .get(..8)
+            .and_then(|b| b.try_into().ok())
+            .ok_or("not a model file (too short)")?,
+    );
+    if len > 100 << 20 {
+        return Err("not a model file (bad SafeTensors header)".into());
+    }
+    Ok(len as usize)
+}
+
+/// The radn configuration in a SafeTensors JSON header.
+fn config_from_header(header: &[u8]) -> std::result::Result<NetConfig, String> {
+    let json: serde_json::Value = serde_json::from_slice(header)
+        .map_err(|_| "not a model file (bad SafeTensors header)".to_string())?;
     let meta = &json["__metadata__"];
     if meta[FORMAT_KEY].as_str() != Some(FORMAT) {
-        return Err(err("not a radn model (no radn.format metadata)".into()));
+        return Err("not a radn model (no radn.format metadata)".into());
     }
     let text = meta[CONFIG_KEY]
         .as_str()
-        .ok_or_else(|| err("the model has no embedded configuration".into()))?;
-    NetConfig::parse(text).map_err(|e| err(e.to_string()))
+        .ok_or("the model has no embedded configuration")?;
+    NetConfig::parse(text).map_err(|e| e.to_string())
 }
 
 /// Loads a model file onto `device`.
 pub fn load(path: &Path, device: &Device) -> Result<Denoiser> {
     let config = read_config(path)?;
+    load_into(config, SafetensorsStore::from_file(path), path, device)
+}
+
+/// Loads a model held in memory (e.g. one compiled into the binary); `name` labels errors.
+pub fn load_bytes(bytes: &[u8], name: &Path, device: &Device) -> Result<Denoiser> {
+    let err = |detail: String| NnError::Load {
+        path: name.to_path_buf(),
+        detail,
+    };
+    let n = header_len(bytes).map_err(err)?;
+    let header = bytes
+        .get(8..8 + n)
+        .ok_or_else(|| err("the model is truncated".into()))?;
+    let config = config_from_header(header).map_err(err)?;
+    load_into(
+        config,
+        SafetensorsStore::from_bytes(Some(bytes.to_vec())),
+        name,
+        device,
+    )
+}
+
+fn load_into(
+    config: NetConfig,
+    mut store: SafetensorsStore,
+    path: &Path,
+    device: &Device,
+) -> Result<Denoiser> {
     let mut d = Denoiser::new(config, device);
-    let mut store = SafetensorsStore::from_file(path);
     let result = d.net.load_from(&mut store).map_err(|e| NnError::Load {
         path: path.to_path_buf(),
         detail: format!("{e:?}"),
@@ -129,6 +168,24 @@ mod tests {
             .try_to_vec::<f32>()
             .unwrap();
         assert_eq!(a, b);
+        // the same bytes loaded from memory give the same network
+        let bytes = std::fs::read(&p).unwrap();
+        let m = load_bytes(&bytes, Path::new("mem"), &device).unwrap();
+        let x2 = Tensor::<5>::from_data(
+            TensorData::new(
+                (0..n).map(|i| (i % 17) as f32 / 17.0).collect::<Vec<f32>>(),
+                [1, 5, crate::config::INPUT_CHANNELS, 6, 6],
+            ),
+            &device,
+        );
+        let c = m
+            .predict(x2, 0.004)
+            .frame_mass(5)
+            .to_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert_eq!(b, c);
+        assert!(load_bytes(&bytes[..bytes.len() / 2], Path::new("mem"), &device).is_err());
         // not a model
         std::fs::write(dir.path().join("x"), b"hello").unwrap();
         assert!(load(&dir.path().join("x"), &device).is_err());

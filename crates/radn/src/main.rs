@@ -2,6 +2,7 @@
 
 mod cmd;
 mod input;
+mod model;
 mod progress;
 
 use clap::{Parser, Subcommand};

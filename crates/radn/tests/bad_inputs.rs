@@ -114,6 +114,26 @@ fn warp_args<'a>(input: &'a str, out: &'a str) -> Vec<&'a str> {
     ]
 }
 
+/// `radn denoise` (the default network) on the same input, writing `out` (a pattern).
+fn denoise_args<'a>(input: &'a str, out: &'a str) -> Vec<&'a str> {
+    vec!["denoise", "-i", input, "-o", out, "--preset", "cycles"]
+}
+
+/// Runs `warp` and `denoise` on a bad input and returns both errors. Denoise writes to a
+/// folder of its own: frames before the bad one may be finished; the input folder is checked.
+fn both_fail(dir: &Path, input: &str, extra: &[&str]) -> [String; 2] {
+    let w = dir.join("w.exr");
+    let mut a = warp_args(input, w.to_str().unwrap());
+    a.extend(extra);
+    let e1 = fails(dir, &a);
+    let o = tempfile::tempdir().unwrap();
+    let pat = o.path().join("d.####.exr");
+    let mut a = denoise_args(input, pat.to_str().unwrap());
+    a.extend(extra);
+    let e2 = fails(dir, &a);
+    [e1, e2]
+}
+
 #[test]
 fn truncated_exr() {
     let d = tempfile::tempdir().unwrap();
@@ -121,12 +141,12 @@ fn truncated_exr() {
     let victim = d.path().join("beauty.0002.exr");
     let bytes = std::fs::read(&victim).unwrap();
     std::fs::write(&victim, &bytes[..bytes.len() * 2 / 3]).unwrap();
-    let out = d.path().join("out/w.exr");
-    let e = fails(d.path(), &warp_args(&input, out.to_str().unwrap()));
-    assert!(
-        e.contains("beauty.0002.exr") && (e.contains("truncated") || e.contains("corrupt")),
-        "{e}"
-    );
+    for e in both_fail(d.path(), &input, &[]) {
+        assert!(
+            e.contains("beauty.0002.exr") && (e.contains("truncated") || e.contains("corrupt")),
+            "{e}"
+        );
+    }
 }
 
 #[test]
@@ -134,12 +154,12 @@ fn not_an_exr() {
     let d = tempfile::tempdir().unwrap();
     let input = sequence(d.path(), 5);
     std::fs::write(d.path().join("beauty.0004.exr"), b"P6\n32 24\n255\n").unwrap();
-    let out = d.path().join("w.exr");
-    let e = fails(d.path(), &warp_args(&input, out.to_str().unwrap()));
-    assert!(
-        e.contains("beauty.0004.exr") && e.contains("not an OpenEXR file"),
-        "{e}"
-    );
+    for e in both_fail(d.path(), &input, &[]) {
+        assert!(
+            e.contains("beauty.0004.exr") && e.contains("not an OpenEXR file"),
+            "{e}"
+        );
+    }
 }
 
 #[test]
@@ -152,12 +172,12 @@ fn missing_albedo_normal_or_motion() {
         let d = tempfile::tempdir().unwrap();
         let input = sequence(d.path(), 5);
         cycles_frame(&d.path().join("beauty.0003.exr"), 3, W, H, &[pass], false);
-        let out = d.path().join("w.exr");
-        let e = fails(d.path(), &warp_args(&input, out.to_str().unwrap()));
-        assert!(
-            e.contains("beauty.0003.exr") && e.contains(word) && e.contains("cycles"),
-            "{pass}: {e}"
-        );
+        for e in both_fail(d.path(), &input, &[]) {
+            assert!(
+                e.contains("beauty.0003.exr") && e.contains(word) && e.contains("cycles"),
+                "{pass}: {e}"
+            );
+        }
     }
 }
 
@@ -166,12 +186,12 @@ fn frames_of_different_sizes() {
     let d = tempfile::tempdir().unwrap();
     let input = sequence(d.path(), 5);
     cycles_frame(&d.path().join("beauty.0004.exr"), 4, W + 2, H, &[], false);
-    let out = d.path().join("w.exr");
-    let e = fails(d.path(), &warp_args(&input, out.to_str().unwrap()));
-    assert!(
-        e.contains("beauty.0004.exr") && e.contains("34x24") && e.contains("32x24"),
-        "{e}"
-    );
+    for e in both_fail(d.path(), &input, &[]) {
+        assert!(
+            e.contains("beauty.0004.exr") && e.contains("34x24") && e.contains("32x24"),
+            "{e}"
+        );
+    }
 }
 
 #[test]
@@ -179,17 +199,16 @@ fn missing_frame_in_range() {
     let d = tempfile::tempdir().unwrap();
     let input = sequence(d.path(), 5);
     std::fs::remove_file(d.path().join("beauty.0002.exr")).unwrap();
-    let out = d.path().join("w.exr");
-    let mut args = warp_args(&input, out.to_str().unwrap());
-    args.extend(["--frames", "1-5"]);
-    let e = fails(d.path(), &args);
-    assert!(
-        e.contains("frame 2") && e.contains("beauty.0002.exr"),
-        "{e}"
-    );
+    for e in both_fail(d.path(), &input, &["--frames", "1-5"]) {
+        assert!(
+            e.contains("frame 2") && e.contains("beauty.0002.exr"),
+            "{e}"
+        );
+    }
     // without an explicit range the gap is found too
-    let e = fails(d.path(), &warp_args(&input, out.to_str().unwrap()));
-    assert!(e.contains("beauty.0002.exr"), "{e}");
+    for e in both_fail(d.path(), &input, &[]) {
+        assert!(e.contains("beauty.0002.exr"), "{e}");
+    }
 }
 
 #[test]
@@ -197,16 +216,15 @@ fn nan_and_inf_pixels() {
     let d = tempfile::tempdir().unwrap();
     let input = sequence(d.path(), 5);
     cycles_frame(&d.path().join("beauty.0003.exr"), 3, W, H, &[], true);
+    for e in both_fail(d.path(), &input, &["--nonfinite", "error"]) {
+        assert!(
+            e.contains("beauty.0003.exr")
+                && e.contains("ViewLayer.Combined.G")
+                && e.contains("2 NaN/Inf"),
+            "{e}"
+        );
+    }
     let out = d.path().join("w.exr");
-    let mut args = warp_args(&input, out.to_str().unwrap());
-    args.extend(["--nonfinite", "error"]);
-    let e = fails(d.path(), &args);
-    assert!(
-        e.contains("beauty.0003.exr")
-            && e.contains("ViewLayer.Combined.G")
-            && e.contains("2 NaN/Inf"),
-        "{e}"
-    );
     // by default they are repaired, reported, and the output is finite
     let res = Command::new(env!("CARGO_BIN_EXE_radn"))
         .args(warp_args(&input, out.to_str().unwrap()))
@@ -238,6 +256,12 @@ fn unwritable_output_folder() {
         e.contains("cannot write") && e.contains("beauty.0001.exr"),
         "{e}"
     );
+    let out = d.path().join("beauty.0001.exr/sub/d.####.exr");
+    let e = fails(d.path(), &denoise_args(&input, out.to_str().unwrap()));
+    assert!(
+        e.contains("cannot write") && e.contains("beauty.0001.exr"),
+        "{e}"
+    );
 }
 
 #[test]
@@ -254,6 +278,15 @@ fn output_equal_to_input() {
     let other = format!("{}/./beauty.0002.exr", d.path().display());
     let e = fails(d.path(), &warp_args(&input, &other));
     assert!(e.contains("refusing"), "{e}");
+    // denoise: the same pattern, or one that names the same files another way
+    let e = fails(d.path(), &denoise_args(&input, &input));
+    assert!(e.contains("refusing"), "{e}");
+    let other = format!("{}/./beauty.####.exr", d.path().display());
+    let e = fails(d.path(), &denoise_args(&input, &other));
+    assert!(
+        e.contains("refusing") && e.contains("beauty.0001.exr"),
+        "{e}"
+    );
 }
 
 #[test]

@@ -20,7 +20,9 @@ fn denoises_keeps_other_channels_and_resumes() {
     let d = tempfile::tempdir().unwrap();
     let input = format!("{}/low/frame_####.exr", sample().display());
     let output = format!("{}/out/dn_####.exr", d.path().display());
-    let out = radn(&["denoise", "-i", &input, "-o", &output, "--frames", "4-6"]);
+    let out = radn(&[
+        "denoise", "--method", "classic", "-i", &input, "-o", &output, "--frames", "4-6",
+    ]);
     assert!(
         out.status.success(),
         "{}",
@@ -53,7 +55,9 @@ fn denoises_keeps_other_channels_and_resumes() {
     }
     // a second run finds every output and skips it, leaving the files alone
     let before = std::fs::read(d.path().join("out/dn_0005.exr")).unwrap();
-    let out = radn(&["denoise", "-i", &input, "-o", &output, "--frames", "4-6"]);
+    let out = radn(&[
+        "denoise", "--method", "classic", "-i", &input, "-o", &output, "--frames", "4-6",
+    ]);
     assert!(out.status.success());
     assert!(String::from_utf8_lossy(&out.stdout).contains("denoised 0 frames (3 already done"));
     assert_eq!(
@@ -69,6 +73,8 @@ fn aovs_that_sum_to_the_beauty_still_do_and_alpha_is_denoised() {
     let output = format!("{}/out/frame_####.exr", d.path().display());
     let out = radn(&[
         "denoise",
+        "--method",
+        "classic",
         "-i",
         &input,
         "-o",

@@ -115,9 +115,19 @@ fn passes_threshold_and_resume() {
     ]);
     assert!(!res.status.success());
     assert!(String::from_utf8_lossy(&res.stderr).contains("must be in [0, 1/K)"));
-    // without a model the network method says what to do
-    let res = radn(&["denoise", "--method", "network", "-i", &input, "-o", &one]);
-    assert!(String::from_utf8_lossy(&res.stderr).contains("--model"));
+    // without --model (and without --method) the built-in default model runs
+    let dflt = format!("{}/pd/f_####.exr", d.path().display());
+    let res = radn(&["denoise", "-i", &input, "-o", &dflt, "--frames", "5-5"]);
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    let c = ExrFile::read(d.path().join("pd/f_0005.exr"))
+        .unwrap()
+        .channel_f32("ViewLayer.Combined.G")
+        .unwrap();
+    assert_ne!(a, c, "the default model is not the test's model");
 }
 
 #[test]

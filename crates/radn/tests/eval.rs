@@ -100,3 +100,59 @@ fn eval_without_common_frames_is_an_error() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no frame number is in both"));
 }
+
+#[test]
+fn html_report_shows_every_sequence_with_crops_weights_and_the_metric_table() {
+    let d = tempfile::tempdir().unwrap();
+    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/../../samples/cycles-sample");
+    let report = d.path().join("report");
+    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args([
+            "eval",
+            "--html",
+            report.to_str().unwrap(),
+            "--result",
+            &format!("{sample}/high"),
+            "--name",
+            "thirty-two",
+            "--compare",
+            &format!("four={sample}/low"),
+            "--reference",
+            &format!("{sample}/ref"),
+            "--input",
+            &format!("{sample}/low/frame_####.exr"),
+            "--frames",
+            "3-7",
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    assert!(String::from_utf8_lossy(&out.stdout).contains("index.html"));
+    let html = std::fs::read_to_string(report.join("index.html")).unwrap();
+    for needle in ["thirty-two", "four", "<svg", "PSNR", "tMAE", "weight_4.png"] {
+        assert!(html.contains(needle), "{needle} missing from the report");
+    }
+    // the 32-spp render is closer to the reference than the 4-spp one: its PSNR cell is the best
+    let row = |name: &str| {
+        let i = html.find(&format!(">{name}</td>")).unwrap();
+        html[i..].split("</tr>").next().unwrap().to_string()
+    };
+    assert!(row("thirty-two").contains("class=\"best\""));
+    assert!(!row("four").contains("class=\"best\""));
+    // every image the page names exists and decodes as PNG
+    let mut n = 0;
+    for part in html.split("src=\"").skip(1) {
+        let src = part.split('"').next().unwrap();
+        let bytes = std::fs::read(report.join(src)).unwrap();
+        let dec = png::Decoder::new(std::io::Cursor::new(bytes));
+        let info = dec.read_info().unwrap();
+        assert!(info.info().width > 0, "{src}");
+        n += 1;
+    }
+    // full reference + 2 crops × (2 sequences + reference) + 5 weight maps
+    assert_eq!(n, 1 + 2 * 3 + 5);
+}

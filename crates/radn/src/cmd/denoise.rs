@@ -15,7 +15,7 @@ use crate::input::{sequence_files, ChannelArgs};
 pub enum Method {
     /// The non-neural pipeline: flow-refined alignment, robust temporal average, joint NLM, guided filter.
     Classic,
-    /// A kernel-predicting network (the Robust Average network or a baseline) from --model.
+    /// A kernel-predicting network: the shipped default Robust Average model, or --model.
     Network,
 }
 
@@ -54,7 +54,7 @@ pub struct Args {
     #[arg(long)]
     pub frames: Option<String>,
     /// Denoising method.
-    #[arg(long, value_enum, default_value = "classic")]
+    #[arg(long, value_enum, default_value = "network")]
     pub method: Method,
     /// Extra layers to denoise with the beauty's weights (comma-separated layer names, e.g. DiffCol,GlossCol).
     #[arg(long, value_delimiter = ',')]
@@ -65,7 +65,8 @@ pub struct Args {
     /// Storage of the denoised channels: the input's own type, half or float.
     #[arg(long, value_enum, default_value = "same")]
     pub output_precision: Precision,
-    /// Network: the model file (radn SafeTensors with its configuration embedded).
+    /// Network: a model file (radn SafeTensors with its configuration embedded); default: the
+    /// model compiled into radn (models/default.safetensors).
     #[arg(long)]
     pub model: Option<PathBuf>,
     /// Network: kernel threshold t (paper eq. 3); higher keeps more of the input. Default: the model's.
@@ -143,6 +144,12 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     let outputs: Vec<PathBuf> = inputs.iter().map(|(f, _)| out_pattern.path(*f)).collect();
+    // before anything else (also before finished outputs are skipped): an output that is an
+    // input under another spelling of its path must be refused, not counted as done
+    let input_paths: Vec<PathBuf> = inputs.iter().map(|(_, p)| p.clone()).collect();
+    for o in &outputs {
+        radn_core::output::ensure_not_input(o, &input_paths)?;
+    }
     let mut reader = a.channels.reader(&inputs[0].1, Requirements::DENOISE)?;
     reader.aovs = a.aovs.clone();
     let method: Box<dyn radn_core::job::WindowDenoiser> = match a.method {
@@ -229,11 +236,8 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Loads the network method from the command-line options.
 fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
-    let path = a.model.as_ref().ok_or_else(|| {
-        anyhow!("--method network needs --model FILE (no trained default model ships yet; --method classic needs none)")
-    })?;
     let device = radn_nn::burn::tensor::Device::flex();
-    let d = radn_nn::store::load(path, &device)?;
+    let d = crate::model::load(a.model.as_deref(), &device)?;
     let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
     if let Some(t) = a.threshold {
         let k = n.denoiser.config.kernel_taps() as f32;

@@ -21,17 +21,29 @@ pub struct Args {
     pub reference: Option<String>,
     /// Instead: temporal utilisation of a network (paper Table 1, Fig. 6) on --input: the mean
     /// and max kernel weight of each window frame, and heat maps of the centre frame's share.
-    #[arg(long, requires_all = ["model", "input"])]
+    #[arg(long, requires = "input")]
     pub utilization: bool,
-    /// For --utilization: the model file.
+    /// For --utilization and --html: the model file (default: the built-in model).
     #[arg(long)]
     pub model: Option<PathBuf>,
-    /// For --utilization: the noisy input sequence.
+    /// For --utilization (and --html heat maps): the noisy input sequence.
     #[arg(short, long)]
     pub input: Option<String>,
     /// For --utilization: write heat maps (PNG) of the centre frame's weight here.
     #[arg(long)]
     pub heatmaps: Option<PathBuf>,
+    /// Instead: write an HTML report here (index.html with side-by-side crops of --result and
+    /// every --compare sequence against --reference, the metric table and per-frame plots, and
+    /// kernel-weight heat maps when --input is given).
+    #[arg(long, requires_all = ["result", "reference"])]
+    pub html: Option<PathBuf>,
+    /// For --html: the name of --result in the report.
+    #[arg(long, default_value = "radn")]
+    pub name: String,
+    /// For --html: more sequences to show beside --result, as NAME=PATTERN (e.g.
+    /// noisy=in/beauty.####.exr, classic=classic/frame_####.exr); repeat the flag.
+    #[arg(long)]
+    pub compare: Vec<String>,
     /// Only these frames (first-last[xstep]).
     #[arg(long)]
     pub frames: Option<String>,
@@ -71,12 +83,65 @@ pub fn run(a: Args) -> Result<()> {
     if a.utilization {
         return crate::cmd::utilization::run(&a);
     }
+    if a.html.is_some() {
+        return crate::cmd::report::run(&a);
+    }
     let (result_spec, reference_spec) = (
         a.result.clone().expect("clap requires it"),
         a.reference.clone().expect("clap requires it"),
     );
-    let result = sequence_files(&result_spec, a.frames.as_deref())?;
-    let reference = sequence_files(&reference_spec, None)?;
+    let rows = evaluate(&a, &result_spec, &reference_spec)?.rows;
+    let mean = mean_row(&rows);
+    println!(
+        "{:>8} {:>9} {:>8} {:>10} {:>9} {:>8}",
+        "frame", "PSNR", "SSIM", "relMSE", "tMAE", "tPSNR"
+    );
+    for r in rows.iter().chain(std::iter::once(&mean)) {
+        let label = if r.frame == i64::MIN {
+            "mean".to_string()
+        } else {
+            r.frame.to_string()
+        };
+        let opt =
+            |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
+        println!(
+            "{:>8} {:>9.3} {:>8.4} {:>10.5} {:>9} {:>8}",
+            label,
+            r.psnr,
+            r.ssim,
+            r.relmse,
+            opt(r.tmae, 5),
+            opt(r.tpsnr, 2)
+        );
+    }
+    if let Some(p) = &a.json {
+        let mut m = serde_json::to_value(&mean)?;
+        m["frame"] = serde_json::Value::Null;
+        let v = serde_json::json!({"result": result_spec, "reference": reference_spec, "frames": rows, "mean": m});
+        write_atomic(p, serde_json::to_string_pretty(&v)?.as_bytes())?;
+    }
+    if let Some(p) = &a.csv {
+        let mut w = csv::Writer::from_writer(Vec::new());
+        for r in &rows {
+            w.serialize(r)?;
+        }
+        write_atomic(p, &w.into_inner()?)?;
+    }
+    Ok(())
+}
+
+/// A result sequence judged against the reference: per-frame metrics and the colour planes.
+pub struct Evaluation {
+    /// Metrics of every frame found in both sequences, in frame order.
+    pub rows: Vec<FrameMetrics>,
+    /// (frame, result colour, reference colour), in frame order.
+    pub planes: Vec<(i64, Plane, Plane)>,
+}
+
+/// Reads `result_spec` and `reference_spec` (frames matched by number) and computes the metrics.
+pub fn evaluate(a: &Args, result_spec: &str, reference_spec: &str) -> Result<Evaluation> {
+    let result = sequence_files(result_spec, a.frames.as_deref())?;
+    let reference = sequence_files(reference_spec, None)?;
     let pairs: Vec<(i64, PathBuf, PathBuf)> = result
         .iter()
         .filter_map(|(f, p)| {
@@ -136,46 +201,11 @@ pub fn run(a: Args) -> Result<()> {
             })
         })
         .collect::<Result<_>>()?;
-    let mean = mean_row(&rows);
-    println!(
-        "{:>8} {:>9} {:>8} {:>10} {:>9} {:>8}",
-        "frame", "PSNR", "SSIM", "relMSE", "tMAE", "tPSNR"
-    );
-    for r in rows.iter().chain(std::iter::once(&mean)) {
-        let label = if r.frame == i64::MIN {
-            "mean".to_string()
-        } else {
-            r.frame.to_string()
-        };
-        let opt =
-            |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
-        println!(
-            "{:>8} {:>9.3} {:>8.4} {:>10.5} {:>9} {:>8}",
-            label,
-            r.psnr,
-            r.ssim,
-            r.relmse,
-            opt(r.tmae, 5),
-            opt(r.tpsnr, 2)
-        );
-    }
-    if let Some(p) = &a.json {
-        let mut m = serde_json::to_value(&mean)?;
-        m["frame"] = serde_json::Value::Null;
-        let v = serde_json::json!({"result": result_spec, "reference": reference_spec, "frames": rows, "mean": m});
-        write_atomic(p, serde_json::to_string_pretty(&v)?.as_bytes())?;
-    }
-    if let Some(p) = &a.csv {
-        let mut w = csv::Writer::from_writer(Vec::new());
-        for r in &rows {
-            w.serialize(r)?;
-        }
-        write_atomic(p, &w.into_inner()?)?;
-    }
-    Ok(())
+    Ok(Evaluation { rows, planes })
 }
 
-fn mean_row(rows: &[FrameMetrics]) -> FrameMetrics {
+/// The mean over frames (temporal metrics over the frames that have them); `frame` is `i64::MIN`.
+pub fn mean_row(rows: &[FrameMetrics]) -> FrameMetrics {
     let n = rows.len() as f64;
     let opt_mean = |f: &dyn Fn(&FrameMetrics) -> Option<f64>| {
         let v: Vec<f64> = rows.iter().filter_map(f).collect();
@@ -208,8 +238,5 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
 }
 
 fn tempfile_in(dir: &std::path::Path) -> Result<tempfile::NamedTempFile> {
-    tempfile::Builder::new()
-        .prefix(".radn-")
-        .tempfile_in(dir)
-        .map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))
+    radn_core::output::output_tempfile(dir, ".radn-", ".tmp").map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))
 }

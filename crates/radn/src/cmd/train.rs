@@ -17,13 +17,34 @@ pub struct Args {
     /// Continue the run in --out from its last checkpoint.
     #[arg(long)]
     pub resume: bool,
+    /// Training tiles to use instead of the config's `train` (relative to the working folder).
+    #[arg(long)]
+    pub train: Option<PathBuf>,
+    /// Validation tiles to use instead of the config's `val` (relative to the working folder).
+    #[arg(long)]
+    pub val: Option<PathBuf>,
+    /// Train to this many steps instead of the config's `steps` (e.g. to extend a finished run
+    /// with --resume; the cosine schedule is recomputed for the new length).
+    #[arg(long)]
+    pub steps: Option<usize>,
 }
 
 /// Trains.
 pub fn run(a: Args) -> Result<()> {
     let text = std::fs::read_to_string(&a.config)
         .with_context(|| format!("cannot read '{}'", a.config.display()))?;
-    let config = TrainConfig::parse(&text).with_context(|| format!("'{}'", a.config.display()))?;
+    let mut config =
+        TrainConfig::parse(&text).with_context(|| format!("'{}'", a.config.display()))?;
+    let cwd = std::env::current_dir().context("cannot read the working folder")?;
+    if let Some(t) = &a.train {
+        config.train = cwd.join(t);
+    }
+    if let Some(v) = &a.val {
+        config.val = cwd.join(v);
+    }
+    if let Some(n) = a.steps {
+        config.steps = n;
+    }
     let base = a.config.parent().map(PathBuf::from).unwrap_or_default();
     let device = radn_nn::burn::tensor::Device::flex().autodiff();
     let mut trainer = Trainer::new(config.clone(), &base, &a.out, a.resume, &device)?;

@@ -13,11 +13,11 @@ use crate::input::sequence_files;
 /// Prints per-frame mean and max kernel weight over all pixels of all frames evaluated, and
 /// writes heat maps of the centre frame's share.
 pub fn run(a: &Args) -> Result<()> {
-    let model = a.model.as_ref().expect("clap requires --model");
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
     let device = radn_nn::burn::tensor::Device::flex();
-    let d = radn_nn::store::load(model, &device)?;
+    let d = crate::model::load(a.model.as_deref(), &device)?;
+    let model = crate::model::label(a.model.as_deref());
     let t = d.config.frames;
     let net = radn_nn::infer::NetworkDenoiser::new(d, device);
     let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
