@@ -42,7 +42,8 @@ def utilization(run):
 
 def main():
     runs, configs = sys.argv[1], sys.argv[2:]
-    print("| run | steps | val loss (step 0 → last) | val PSNR dB (step 0 → last) | best val PSNR |")
+    print("| run | steps | val loss (step 0 → last) | val PSNR dB (step 0 → last) | "
+          "val PSNR at the lowest val loss |")
     print("|---|---:|---|---|---:|")
     for c in configs:
         s = run_summary(os.path.join(runs, c))
@@ -57,11 +58,12 @@ def main():
         offsets, avg, mx, n = u
         if header is None:
             cols = " | ".join(f"frame {o:+d}" for o in offsets)
-            print(f"| run | | {cols} |")
-            print("|---|---|" + "---:|" * len(offsets))
+            print(f"| run | | {cols} | off-centre share |")
+            print("|---|---|" + "---:|" * (len(offsets) + 1))
             header = True
-        print(f"| {c} | avg | " + " | ".join(f"{v:.4f}" for v in avg) + " |")
-        print(f"| | max | " + " | ".join(f"{v:.4f}" for v in mx) + " |")
+        off = sum(v for o, v in zip(offsets, avg) if o != 0)
+        print(f"| {c} | avg | " + " | ".join(f"{v:.4f}" for v in avg) + f" | {off:.3f} |")
+        print("| | max | " + " | ".join(f"{v:.4f}" for v in mx) + " | |")
     print()
     print(f"(utilisation: mean over the {n} validation scenes' frames; max over all their pixels)")
 

@@ -354,10 +354,12 @@ impl ExrFile {
             path: dir.clone(),
             source,
         })?;
-        let tmp = crate::output::output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| Error::Write {
+        let tmp = crate::output::output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| {
+            Error::Write {
                 path: dir.clone(),
                 source,
-            })?;
+            }
+        })?;
         {
             let mut writer = std::io::BufWriter::new(tmp.as_file());
             self.image

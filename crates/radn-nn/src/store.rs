@@ -26,7 +26,8 @@ pub fn save(denoiser: &Denoiser, path: &Path) -> Result<()> {
         .filter(|d| !d.as_os_str().is_empty())
         .unwrap_or(Path::new("."));
     std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
-    let tmp = radn_core::output::output_tempfile(dir, ".radn-model-", ".safetensors").map_err(|e| err(e.to_string()))?;
+    let tmp = radn_core::output::output_tempfile(dir, ".radn-model-", ".safetensors")
+        .map_err(|e| err(e.to_string()))?;
     let mut store = SafetensorsStore::from_file(tmp.path())
         .metadata(CONFIG_KEY, denoiser.config.to_toml())
         .metadata(FORMAT_KEY, FORMAT)

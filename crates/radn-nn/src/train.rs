@@ -273,6 +273,8 @@ impl Trainer {
                     path: out.join("optimizer.bpk"),
                     detail: format!("{e:?}"),
                 })?;
+            // steps after the checkpoint are redone: their logged rows would be duplicates
+            drop_metrics_after(&out.join("metrics.csv"), state.step)?;
             (d, optim, state)
         } else {
             // initial weights drawn right after seeding, all at once (burn initialises lazily)
@@ -503,6 +505,38 @@ pub struct Progress {
     pub tiles_per_s: f64,
     /// The validation result, when this step validated.
     pub validation: Option<Validation>,
+}
+
+/// Removes the rows logged after `step` from a run's metrics CSV (left by a run killed between
+/// checkpoints), so a resumed run's curves have one row per step and kind.
+fn drop_metrics_after(path: &Path, step: usize) -> Result<()> {
+    let Ok(text) = std::fs::read_to_string(path) else {
+        return Ok(()); // no metrics yet
+    };
+    let kept: String = text
+        .lines()
+        .enumerate()
+        .filter(|(i, l)| {
+            *i == 0
+                || l.split(',')
+                    .next()
+                    .and_then(|s| s.parse::<usize>().ok())
+                    .is_none_or(|s| s <= step)
+        })
+        .map(|(_, l)| format!("{l}\n"))
+        .collect();
+    if kept.len() == text.len() {
+        return Ok(());
+    }
+    let save_err = |e: std::io::Error| NnError::Save {
+        path: path.to_path_buf(),
+        detail: e.to_string(),
+    };
+    let dir = path.parent().unwrap_or(Path::new("."));
+    let mut tmp = radn_core::output::output_tempfile(dir, ".metrics", ".csv").map_err(save_err)?;
+    tmp.write_all(kept.as_bytes()).map_err(save_err)?;
+    tmp.persist(path).map_err(|e| save_err(e.error))?;
+    Ok(())
 }
 
 impl Trainer {

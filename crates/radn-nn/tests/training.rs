@@ -124,9 +124,26 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
     b.checkpoint().unwrap();
     drop(b);
     copy_run(&d.path().join("b"), &d.path().join("c")); // for the control below
+                                                        // the killed run had logged step 3 after its checkpoint: resuming redoes it, once
+    let csv = d.path().join("b/metrics.csv");
+    let header = "step,kind,loss,psnr,lr,tiles_per_s\n";
+    let logged = "1,train,0.5,,1e-4,1.0\n2,train,0.5,,1e-4,1.0\n3,train,0.5,,1e-4,1.0\n";
+    std::fs::write(&csv, format!("{header}{logged}")).unwrap();
     let mut b = Trainer::new(config(4), d.path(), &d.path().join("b"), true, &device).unwrap();
     assert_eq!(b.state.step, 2, "resumes from the saved step");
     b.run(|_| {}).unwrap();
+    let train_steps: Vec<String> = std::fs::read_to_string(&csv)
+        .unwrap()
+        .lines()
+        .skip(1)
+        .filter(|l| l.contains(",train,"))
+        .map(|l| l.split(',').next().unwrap().to_string())
+        .collect();
+    assert_eq!(
+        train_steps,
+        ["1", "2", "3", "4"],
+        "one metrics row per step"
+    );
     // Adam's moments shape every update: identical weights after the resumed steps mean the
     // optimizer state was restored exactly and the batches were the same
     assert_eq!(

@@ -238,5 +238,6 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
 }
 
 fn tempfile_in(dir: &std::path::Path) -> Result<tempfile::NamedTempFile> {
-    radn_core::output::output_tempfile(dir, ".radn-", ".tmp").map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))
+    radn_core::output::output_tempfile(dir, ".radn-", ".tmp")
+        .map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))
 }
