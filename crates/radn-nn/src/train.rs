@@ -382,12 +382,19 @@ impl Trainer {
         let tile = self.val.manifest.tile;
         let frames = self.val.manifest.frames;
         let thr = self.denoiser.config.default_threshold();
+        // forward passes off the autodiff graph: with tracked parameters every validation tile
+        // would record a graph (the `paper` network ran out of 24 GB at step 0)
+        let plain = self.device.clone().without_autodiff();
+        let denoiser = Denoiser {
+            net: self.denoiser.net.valid(),
+            config: self.denoiser.config.clone(),
+        };
         let (mut loss, mut psnr) = (0.0, 0.0);
         for i in 0..n {
             let t = self.val.get(i)?;
             let target = if t.targets[3].is_some() { 3 } else { 0 };
-            let b = make_batch(&[(t, 2, target, 0, 0)], frames, tile, tile, &self.device);
-            let pred = self.denoiser.predict(b.features.detach(), thr);
+            let b = make_batch(&[(t, 2, target, 0, 0)], frames, tile, tile, &plain);
+            let pred = denoiser.predict(b.features, thr);
             loss += objective(
                 &pred,
                 b.values.clone(),
