@@ -53,19 +53,27 @@ pub struct ExrFile {
 /// The first four bytes of every OpenEXR file.
 const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
 
+/// Refuses a file that cannot be opened or does not start with the OpenEXR magic number, so a
+/// JPEG or an empty file is reported as "not an EXR" rather than as a decoder error.
+fn check_magic(path: &Path) -> Result<()> {
+    let mut magic = [0u8; 4];
+    let mut f = std::fs::File::open(path).map_err(|source| Error::Open {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    if f.read_exact(&mut magic).is_err() || magic != EXR_MAGIC {
+        return Err(Error::NotExr {
+            path: path.to_path_buf(),
+        });
+    }
+    Ok(())
+}
+
 impl ExrFile {
     /// Reads and decodes a whole file; every failure names the file.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        let mut magic = [0u8; 4];
-        let mut f = std::fs::File::open(&path).map_err(|source| Error::Open {
-            path: path.clone(),
-            source,
-        })?;
-        if f.read_exact(&mut magic).is_err() || magic != EXR_MAGIC {
-            return Err(Error::NotExr { path });
-        }
-        drop(f);
+        check_magic(&path)?;
         let image = read()
             .no_deep_data()
             .largest_resolution_level()
@@ -86,15 +94,7 @@ impl ExrFile {
     /// whole sequence can be checked before hours of work start; failures name the file.
     pub fn read_size(path: impl AsRef<Path>) -> Result<(usize, usize)> {
         let path = path.as_ref().to_path_buf();
-        let mut magic = [0u8; 4];
-        let mut f = std::fs::File::open(&path).map_err(|source| Error::Open {
-            path: path.clone(),
-            source,
-        })?;
-        if f.read_exact(&mut magic).is_err() || magic != EXR_MAGIC {
-            return Err(Error::NotExr { path });
-        }
-        drop(f);
+        check_magic(&path)?;
         let meta =
             exr::meta::MetaData::read_from_file(&path, false).map_err(|e| Error::Decode {
                 path: path.clone(),
