@@ -5,6 +5,9 @@ import json
 import sys
 from collections import OrderedDict
 
+LEVELS = ["low", "half", "high"]
+METHODS = ["noisy", "classic", "oidn", "tkpcn", "radn", "radn, 2 passes"]
+
 
 def main():
     rows = [json.loads(line) for line in open(sys.argv[1]) if line.strip()]
@@ -17,7 +20,9 @@ def main():
         print(f"**{g}** ({n} sequence{'s' if n > 1 else ''})\n")
         print("| level | method | PSNR (dB) | SSIM | relMSE | tMAE | speed (MP/s) |")
         print("|---|---|---:|---:|---:|---:|---:|")
-        for (level, method), rs in cells.items():
+        order = lambda k: (LEVELS.index(k[0]) if k[0] in LEVELS else 9,
+                           METHODS.index(k[1]) if k[1] in METHODS else 9, k)
+        for (level, method), rs in sorted(cells.items(), key=lambda kv: order(kv[0])):
             mean = lambda k: sum(r[k] for r in rs if r[k] is not None) / max(
                 1, sum(1 for r in rs if r[k] is not None))
             secs = sum(r["seconds"] for r in rs)
