@@ -1,7 +1,10 @@
 //! `radn eval` on sequences with known errors.
 
+mod common;
+
 use std::path::Path;
-use std::process::Command;
+
+use common::{radn, radn_ok, sample};
 
 use radn_core::exr_file::{ExrFile, SampleKind};
 
@@ -37,27 +40,17 @@ fn eval_reports_known_psnr_flicker_and_writes_json_and_csv() {
     });
     let json = d.path().join("m/metrics.json");
     let csv = d.path().join("m/metrics.csv");
-    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
-        .args([
-            "eval",
-            "--result",
-            result.to_str().unwrap(),
-            "--reference",
-            reference.to_str().unwrap(),
-        ])
-        .args([
-            "--json",
-            json.to_str().unwrap(),
-            "--csv",
-            csv.to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = radn_ok(&[
+        "eval",
+        "--result",
+        result.to_str().unwrap(),
+        "--reference",
+        reference.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+        "--csv",
+        csv.to_str().unwrap(),
+    ]);
     let stdout = String::from_utf8_lossy(&out.stdout);
     assert!(stdout.contains("mean"), "{stdout}");
     let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
@@ -87,16 +80,13 @@ fn eval_without_common_frames_is_an_error() {
     let d = tempfile::tempdir().unwrap();
     write_seq(&d.path().join("a"), &[1, 2], |_, _| 0.5);
     write_seq(&d.path().join("b"), &[5, 6], |_, _| 0.5);
-    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
-        .args([
-            "eval",
-            "--result",
-            d.path().join("a").to_str().unwrap(),
-            "--reference",
-            d.path().join("b").to_str().unwrap(),
-        ])
-        .output()
-        .unwrap();
+    let out = radn(&[
+        "eval",
+        "--result",
+        d.path().join("a").to_str().unwrap(),
+        "--reference",
+        d.path().join("b").to_str().unwrap(),
+    ]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("no frame number is in both"));
 }
@@ -104,33 +94,26 @@ fn eval_without_common_frames_is_an_error() {
 #[test]
 fn html_report_shows_every_sequence_with_crops_weights_and_the_metric_table() {
     let d = tempfile::tempdir().unwrap();
-    let sample = concat!(env!("CARGO_MANIFEST_DIR"), "/../../samples/cycles-sample");
+    let sample = sample();
+    let sample = sample.to_str().unwrap();
     let report = d.path().join("report");
-    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
-        .args([
-            "eval",
-            "--html",
-            report.to_str().unwrap(),
-            "--result",
-            &format!("{sample}/high"),
-            "--name",
-            "thirty-two",
-            "--compare",
-            &format!("four={sample}/low"),
-            "--reference",
-            &format!("{sample}/ref"),
-            "--input",
-            &format!("{sample}/low/frame_####.exr"),
-            "--frames",
-            "3-7",
-        ])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    let out = radn_ok(&[
+        "eval",
+        "--html",
+        report.to_str().unwrap(),
+        "--result",
+        &format!("{sample}/high"),
+        "--name",
+        "thirty-two",
+        "--compare",
+        &format!("four={sample}/low"),
+        "--reference",
+        &format!("{sample}/ref"),
+        "--input",
+        &format!("{sample}/low/frame_####.exr"),
+        "--frames",
+        "3-7",
+    ]);
     assert!(String::from_utf8_lossy(&out.stdout).contains("index.html"));
     let html = std::fs::read_to_string(report.join("index.html")).unwrap();
     for needle in ["thirty-two", "four", "<svg", "PSNR", "tMAE", "weight_4.png"] {

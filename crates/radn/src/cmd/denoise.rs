@@ -144,12 +144,6 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     let outputs: Vec<PathBuf> = inputs.iter().map(|(f, _)| out_pattern.path(*f)).collect();
-    // before anything else (also before finished outputs are skipped): an output that is an
-    // input under another spelling of its path must be refused, not counted as done
-    let input_paths: Vec<PathBuf> = inputs.iter().map(|(_, p)| p.clone()).collect();
-    for o in &outputs {
-        radn_core::output::ensure_not_input(o, &input_paths)?;
-    }
     let mut reader = a.channels.reader(&inputs[0].1, Requirements::DENOISE)?;
     reader.aovs = a.aovs.clone();
     let method: Box<dyn radn_core::job::WindowDenoiser> = match a.method {
@@ -175,6 +169,20 @@ pub fn run(a: Args) -> Result<()> {
     } else {
         None
     };
+    let job = |inputs: &[(i64, PathBuf)], outputs: &[PathBuf], last: bool| SequenceJob {
+        inputs: inputs.to_vec(),
+        outputs: outputs.to_vec(),
+        reader: reader.clone(),
+        overwrite: a.overwrite || !last,
+        output_kind: if last {
+            a.output_precision.kind()
+        } else {
+            Some(radn_core::exr_file::SampleKind::F32)
+        },
+    };
+    // the whole run is checked first, also one with nothing left to do: an output that is an
+    // input under another spelling of its path is refused, not counted as done
+    job(&inputs, &outputs, true).validate()?;
     let mut inputs = inputs;
     let mut report = radn_core::job::JobReport::default();
     let t = std::time::Instant::now();
@@ -198,17 +206,7 @@ pub fn run(a: Args) -> Result<()> {
                 .map(|(f, _)| dir.join(format!("frame_{f:08}.exr")))
                 .collect()
         };
-        let job = SequenceJob {
-            inputs: inputs.clone(),
-            outputs: outs.clone(),
-            reader: reader.clone(),
-            overwrite: a.overwrite || !last,
-            output_kind: if last {
-                a.output_precision.kind()
-            } else {
-                Some(radn_core::exr_file::SampleKind::F32)
-            },
-        };
+        let job = job(&inputs, &outs, last);
         let pb = crate::progress::frames(job.inputs.len() as u64, &format!("pass {pass}/{passes}"));
         let r = job.run(method.as_ref(), |done, _| pb.set_position(done as u64))?;
         pb.finish_and_clear();

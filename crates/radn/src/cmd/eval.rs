@@ -237,6 +237,28 @@ pub fn write_atomic(path: &std::path::Path, bytes: &[u8]) -> Result<()> {
     Ok(())
 }
 
+/// Encodes 8-bit pixels as PNG and writes them atomically.
+pub fn write_png(
+    path: &std::path::Path,
+    bytes: &[u8],
+    w: usize,
+    h: usize,
+    color: png::ColorType,
+) -> Result<()> {
+    let mut buf = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut buf, w as u32, h as u32);
+        enc.set_color(color);
+        enc.set_depth(png::BitDepth::Eight);
+        let mut wr = enc
+            .write_header()
+            .map_err(|e| anyhow!("cannot encode '{}': {e}", path.display()))?;
+        wr.write_image_data(bytes)
+            .map_err(|e| anyhow!("cannot encode '{}': {e}", path.display()))?;
+    }
+    write_atomic(path, &buf)
+}
+
 fn tempfile_in(dir: &std::path::Path) -> Result<tempfile::NamedTempFile> {
     radn_core::output::output_tempfile(dir, ".radn-", ".tmp")
         .map_err(|e| anyhow!("cannot write to '{}': {e}", dir.display()))

@@ -10,7 +10,7 @@ use radn_core::frame::{Frame, Requirements};
 use radn_core::metrics::tonemap;
 use radn_core::Plane;
 
-use super::eval::{evaluate, mean_row, write_atomic, Args, FrameMetrics};
+use super::eval::{evaluate, mean_row, write_atomic, write_png, Args, FrameMetrics};
 use crate::input::sequence_files;
 
 /// One sequence shown in the report.
@@ -39,14 +39,17 @@ pub fn run(a: &Args) -> Result<()> {
     // frames every sequence has; crops come from the middle one
     let mut shown = Vec::new();
     let mut reference: Option<(i64, Plane)> = None;
-    let first = evaluate(a, &specs[0].1, &reference_spec)?;
-    let frames: Vec<i64> = first.rows.iter().map(|r| r.frame).collect();
+    let mut first = Some(evaluate(a, &specs[0].1, &reference_spec)?);
+    let frames: Vec<i64> = first
+        .iter()
+        .flat_map(|e| &e.rows)
+        .map(|r| r.frame)
+        .collect();
     let display = frames[frames.len() / 2];
-    for (i, (name, spec)) in specs.iter().enumerate() {
-        let ev = if i == 0 {
-            first_clone(&first)
-        } else {
-            evaluate(a, spec, &reference_spec)?
+    for (name, spec) in &specs {
+        let ev = match first.take() {
+            Some(e) => e,
+            None => evaluate(a, spec, &reference_spec)?,
         };
         let (_, color, refc) = ev
             .planes
@@ -95,13 +98,6 @@ pub fn run(a: &Args) -> Result<()> {
     write_atomic(&index, html.as_bytes())?;
     println!("report: {}", index.display());
     Ok(())
-}
-
-fn first_clone(e: &super::eval::Evaluation) -> super::eval::Evaluation {
-    super::eval::Evaluation {
-        rows: e.rows.clone(),
-        planes: e.planes.clone(),
-    }
 }
 
 /// Two square regions (x, y, size): the one with the most reference detail (gradient energy)
@@ -206,22 +202,6 @@ fn write_crop(path: &Path, c: &Plane) -> Result<()> {
         }
     }
     write_png(path, &big, w, h, png::ColorType::Rgb)
-}
-
-/// Encodes 8-bit pixels as PNG and writes them atomically.
-fn write_png(path: &Path, bytes: &[u8], w: usize, h: usize, color: png::ColorType) -> Result<()> {
-    let mut buf = Vec::new();
-    {
-        let mut enc = png::Encoder::new(&mut buf, w as u32, h as u32);
-        enc.set_color(color);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut wr = enc
-            .write_header()
-            .map_err(|e| anyhow!("cannot encode '{}': {e}", path.display()))?;
-        wr.write_image_data(bytes)
-            .map_err(|e| anyhow!("cannot encode '{}': {e}", path.display()))?;
-    }
-    write_atomic(path, &buf)
 }
 
 /// A weight in [0, 1] as a colour: dark blue (none) through teal and green to yellow (all).

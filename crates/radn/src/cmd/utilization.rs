@@ -3,11 +3,11 @@
 
 use std::path::Path;
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use radn_core::align::{align_window, window_indices};
 use radn_core::frame::{Frame, Requirements};
 
-use super::eval::{write_atomic, Args};
+use super::eval::{write_atomic, write_png, Args};
 use crate::input::sequence_files;
 
 /// Prints per-frame mean and max kernel weight over all pixels of all frames evaluated, and
@@ -89,16 +89,11 @@ fn heatmap(plane: &radn_core::Plane, path: &Path) -> Result<()> {
         .iter()
         .map(|v| (v.clamp(0.0, 1.0) * 255.0).round() as u8)
         .collect();
-    let mut buf = Vec::new();
-    {
-        let mut enc = png::Encoder::new(&mut buf, plane.width() as u32, plane.height() as u32);
-        enc.set_color(png::ColorType::Grayscale);
-        enc.set_depth(png::BitDepth::Eight);
-        let mut w = enc
-            .write_header()
-            .map_err(|e| anyhow!("cannot encode '{}': {e}", path.display()))?;
-        w.write_image_data(&bytes)
-            .map_err(|e| anyhow!("cannot encode '{}': {e}", path.display()))?;
-    }
-    write_atomic(path, &buf)
+    write_png(
+        path,
+        &bytes,
+        plane.width(),
+        plane.height(),
+        png::ColorType::Grayscale,
+    )
 }

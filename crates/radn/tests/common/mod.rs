@@ -19,6 +19,18 @@ pub fn radn(args: &[&str]) -> std::process::Output {
         .unwrap()
 }
 
+/// Runs the `radn` binary and asserts it succeeded, showing its stderr if not.
+pub fn radn_ok(args: &[&str]) -> std::process::Output {
+    let out = radn(args);
+    assert!(
+        out.status.success(),
+        "radn {}: {}",
+        args.join(" "),
+        String::from_utf8_lossy(&out.stderr)
+    );
+    out
+}
+
 /// Copies the sample's low level into `dir/in/`, with float beauty, two AOVs (`diffuse`,
 /// `specular`) that sum to it exactly, and an alpha that varies between 1 and `low_alpha`.
 pub fn with_aovs(dir: &Path, low_alpha: f32) -> String {
