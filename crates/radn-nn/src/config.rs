@@ -66,6 +66,13 @@ pub struct NetConfig {
     /// Default threshold t; `None` means the paper's default 1/(2K).
     #[serde(default)]
     pub threshold: Option<f32>,
+    /// Albedo demodulation ε: when set, kernels filter colour (and 3-channel AOVs) divided by
+    /// `albedo + ε` and the result is multiplied by the centre frame's `albedo + ε`. Texture
+    /// then survives however wide the kernel averages, so the network only has to find pixels
+    /// with the same lighting, not the same lighting *and* texture. ε bounds the gain where
+    /// albedo is near zero (emitters, background). `None`: kernels filter colour as rendered.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub demodulate: Option<f32>,
     /// The backbone.
     pub backbone: Backbone,
 }
@@ -151,6 +158,11 @@ impl NetConfig {
                 if widths.is_empty() || widths.contains(&0) {
                     return bad("unet needs at least one non-zero width".into());
                 }
+            }
+        }
+        if let Some(eps) = self.demodulate {
+            if !(eps.is_finite() && eps > 0.0) {
+                return bad(format!("demodulate = {eps} must be a positive number"));
             }
         }
         if let Some(t) = self.threshold {

@@ -9,6 +9,7 @@ use radn_core::job::{Denoised, WindowDenoiser};
 use radn_core::Plane;
 
 use crate::config::INPUT_CHANNELS;
+use crate::demod::Demodulation;
 use crate::input::features;
 use crate::model::Denoiser;
 
@@ -62,7 +63,23 @@ impl NetworkDenoiser {
                 values.extend_from_slice(a.data());
             }
         }
-        let out = self.run_tiled(win, &values, chans, |p, v| p.apply(v));
+        // colour and every RGB AOV are demodulated by albedo when the model asks for it
+        let mut rgb = vec![0];
+        let mut at = 3;
+        for &n in &aov_ch {
+            if n == 3 {
+                rgb.push(at);
+            }
+            at += n;
+        }
+        let demod = self.denoiser.config.demodulate;
+        let out = self.run_tiled(win, &values, chans, |p, v, x| match demod {
+            Some(eps) => {
+                let d = Demodulation::new(x, eps, rgb.clone(), chans);
+                d.remodulate(p.apply(d.demodulate(v)))
+            }
+            None => p.apply(v),
+        });
         let color = out.select_channels(0, 3);
         let mut at = 3;
         let aovs = aov_ch
@@ -84,20 +101,20 @@ impl NetworkDenoiser {
     pub fn utilization(&self, win: &AlignedWindow) -> Vec<Plane> {
         let t = win.frames.len();
         let ones = vec![0.0f32; t * win.centre().color.pixels()];
-        let mass = self.run_tiled(win, &ones, 1, |p, _| p.frame_mass(t));
+        let mass = self.run_tiled(win, &ones, 1, |p, _, _| p.frame_mass(t));
         (0..t).map(|k| mass.select_channels(k, 1)).collect()
     }
 
     /// Runs the network tile by tile (each tile with a halo of the receptive field, clamped to
     /// the image, so the result does not depend on the tiling) and assembles `out_channels`
-    /// planes from `f(prediction, values)`, `values` being `[1, T, chans, h, w]` crops of
-    /// `values` (`[T, chans, H, W]`).
+    /// planes from `f(prediction, values, features)`, `values` being `[1, T, chans, h, w]`
+    /// crops of `values` (`[T, chans, H, W]`) and `features` the network input of the crop.
     fn run_tiled(
         &self,
         win: &AlignedWindow,
         values: &[f32],
         chans: usize,
-        f: impl Fn(&crate::model::Prediction, Tensor<5>) -> Tensor<4>,
+        f: impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
     ) -> Plane {
         let c = win.centre();
         let (w, h) = (c.color.width(), c.color.height());
@@ -141,7 +158,7 @@ impl NetworkDenoiser {
                     TensorData::new(crop(values, t * chans), [1, t, chans, rh, rw]),
                     &self.device,
                 );
-                let res = f(&self.denoiser.predict(x, self.threshold), v);
+                let res = f(&self.denoiser.predict(x.clone(), self.threshold), v, &x);
                 let oc = res.dims()[1];
                 let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
                 let out = out.get_or_insert_with(|| Plane::zeros(w, h, oc));
@@ -202,8 +219,10 @@ mod tests {
     #[test]
     fn tiled_and_whole_frame_results_agree() {
         let device = Device::flex();
-        for preset in ["small", "tkpcn"] {
-            let d = Denoiser::new(NetConfig::preset(preset).unwrap(), &device);
+        for (preset, demodulate) in [("small", None), ("tkpcn", None), ("small", Some(0.25))] {
+            let mut config = NetConfig::preset(preset).unwrap();
+            config.demodulate = demodulate;
+            let d = Denoiser::new(config, &device);
             d.materialize();
             let win = window(70, 52);
             let mut n = NetworkDenoiser::new(d, device.clone());
@@ -225,7 +244,7 @@ mod tests {
                         .fold(0.0f32, f32::max);
                     assert!(
                         worst < 1e-5,
-                        "{preset}, tile {tile}: tiled and whole differ by {worst}"
+                        "{preset} {demodulate:?}, tile {tile}: tiled and whole differ by {worst}"
                     );
                 }
             }

@@ -5,6 +5,7 @@ pub mod backbone;
 pub mod bench;
 pub mod config;
 pub mod dataset;
+pub mod demod;
 pub mod error;
 pub mod infer;
 pub mod input;

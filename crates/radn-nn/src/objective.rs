@@ -5,6 +5,7 @@ use burn::tensor::Tensor;
 use serde::{Deserialize, Serialize};
 
 use crate::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
+use crate::demod::Demodulation;
 use crate::loss::{l1, smape};
 use crate::model::Prediction;
 
@@ -106,17 +107,31 @@ pub fn loss_subsets(frames: usize) -> Vec<Vec<bool>> {
     subsets
 }
 
-/// The loss of a prediction on the window's values against the centre target.
+/// The loss of a prediction on the window's values against the centre target. With a
+/// `demod`ulation the kernels filter the demodulated values and every estimate is remodulated
+/// before it meets the target.
+#[allow(clippy::too_many_arguments)]
 pub fn objective(
     pred: &Prediction,
     values: Tensor<5>,
     target: Tensor<4>,
+    demod: Option<&Demodulation>,
     mode: LossMode,
     loss: &LossFn,
     full_weight: f32,
     frames: usize,
 ) -> Tensor<1> {
-    let l = |x: Tensor<4>| loss.eval(x, target.clone());
+    let values = match demod {
+        Some(d) => d.demodulate(values),
+        None => values,
+    };
+    let l = |x: Tensor<4>| {
+        let x = match demod {
+            Some(d) => d.remodulate(x),
+            None => x,
+        };
+        loss.eval(x, target.clone())
+    };
     match mode {
         LossMode::Spatial => l(pred.apply(values)),
         LossMode::Temporal => {
@@ -200,6 +215,7 @@ mod tests {
             &pred,
             values.clone(),
             target.clone(),
+            None,
             LossMode::Temporal,
             &LossFn::Pixel(PixelLoss::L1),
             0.0,
@@ -212,6 +228,7 @@ mod tests {
             &pred,
             values.clone(),
             target.clone(),
+            None,
             LossMode::Spatial,
             &LossFn::Pixel(PixelLoss::L1),
             0.0,
@@ -223,6 +240,7 @@ mod tests {
             &pred,
             values,
             target,
+            None,
             LossMode::Temporal,
             &LossFn::Pixel(PixelLoss::L1),
             0.5,

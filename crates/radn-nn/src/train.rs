@@ -15,6 +15,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::config::{NetConfig, INPUT_CHANNELS};
 use crate::dataset::{SplitMix, Tile, TileDataset};
+use crate::demod::Demodulation;
 use crate::error::{NnError, Result};
 use crate::model::Denoiser;
 use crate::objective::{objective, sample_pair, LossFn, LossMode, PixelLoss};
@@ -65,6 +66,11 @@ pub struct TrainConfig {
     /// Seed of batch order, pairs and crops.
     #[serde(default = "d_seed")]
     pub seed: u64,
+    /// A model file whose weights the run starts from instead of random ones: fine-tuning,
+    /// e.g. the shipped model on a studio's own renders, or a trained model with a changed
+    /// kernel setting (threshold, demodulation). Its layers must match `model`'s.
+    #[serde(default)]
+    pub init: Option<PathBuf>,
 }
 
 fn d_batch() -> usize {
@@ -195,6 +201,24 @@ pub fn make_batch(
     }
 }
 
+/// A network configured as `config` holding the weights of the model file `path`, refused when
+/// the layers differ (only the kernel settings — threshold, demodulation — and the name may).
+fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoiser> {
+    let mut d = store::load(path, device)?;
+    let layers = |c: &NetConfig| (c.arch, c.frames, c.kernel_size, c.backbone.clone());
+    if layers(&d.config) != layers(&config) {
+        return Err(NnError::Load {
+            path: path.to_path_buf(),
+            detail: format!(
+                "its layers ({}) are not those of the configured network ({})",
+                d.config.name, config.name
+            ),
+        });
+    }
+    d.config = config;
+    Ok(d)
+}
+
 /// A training run in `out`: `model.safetensors`, `optimizer.bpk`, `state.json`, `metrics.csv`.
 pub struct Trainer {
     /// Settings.
@@ -279,8 +303,14 @@ impl Trainer {
         } else {
             // initial weights drawn right after seeding, all at once (burn initialises lazily)
             device.seed(config.seed);
-            let d = Denoiser::new(net_cfg, device);
-            d.materialize();
+            let d = match &config.init {
+                Some(init) => start_from(&base.join(init), net_cfg, device)?,
+                None => {
+                    let d = Denoiser::new(net_cfg, device);
+                    d.materialize();
+                    d
+                }
+            };
             (
                 d,
                 AdamConfig::new().init(),
@@ -351,11 +381,13 @@ impl Trainer {
         let frames = self.train.manifest.frames;
         let b = make_batch(&tiles, frames, tile, crop, &self.device);
         let thr = self.denoiser.config.default_threshold();
+        let demod = self.demodulation(&b.features);
         let pred = self.denoiser.predict(b.features, thr);
         let loss = objective(
             &pred,
             b.values,
             b.target,
+            demod.as_ref(),
             self.config.mode,
             &self.loss_fn,
             self.config.full_weight,
@@ -376,6 +408,14 @@ impl Trainer {
         Ok(value)
     }
 
+    /// The network's albedo demodulation for a batch's features (colour only), if it has one.
+    fn demodulation(&self, features: &Tensor<5>) -> Option<Demodulation> {
+        self.denoiser
+            .config
+            .demodulate
+            .map(|eps| Demodulation::new(features, eps, vec![0], 3))
+    }
+
     /// Loss and PSNR on the validation tiles (input `low`, target the cleanest available).
     pub fn validate(&self) -> Result<Validation> {
         let n = self.config.val_tiles.min(self.val.len());
@@ -394,18 +434,23 @@ impl Trainer {
             let t = self.val.get(i)?;
             let target = if t.targets[3].is_some() { 3 } else { 0 };
             let b = make_batch(&[(t, 2, target, 0, 0)], frames, tile, tile, &plain);
+            let demod = self.demodulation(&b.features);
             let pred = denoiser.predict(b.features, thr);
             loss += objective(
                 &pred,
                 b.values.clone(),
                 b.target.clone(),
+                demod.as_ref(),
                 self.config.mode,
                 &self.loss_fn,
                 self.config.full_weight,
                 frames,
             )
             .into_scalar::<f32>() as f64;
-            let out = pred.apply(b.values);
+            let out = match &demod {
+                Some(d) => d.remodulate(pred.apply(d.demodulate(b.values))),
+                None => pred.apply(b.values),
+            };
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)

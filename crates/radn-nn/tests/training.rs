@@ -167,6 +167,58 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
 }
 
 #[test]
+fn fine_tuning_starts_from_the_init_model_and_may_change_kernel_settings() {
+    let d = tempfile::tempdir().unwrap();
+    tiles(&d.path().join("train"), 1, 1);
+    tiles(&d.path().join("val"), 2, 1);
+    let device = Device::flex().autodiff();
+    let base = Trainer::new(config(2), d.path(), &d.path().join("base"), false, &device).unwrap();
+    base.checkpoint().unwrap();
+    let w0 = weights(&base);
+    drop(base);
+    // the same layers with albedo demodulation switched on
+    let net = radn_nn::NetConfig::preset("small")
+        .unwrap()
+        .to_toml()
+        .replace(
+            "name = \"small\"",
+            "name = \"small-demod\"\ndemodulate = 0.25",
+        );
+    std::fs::write(d.path().join("demod.toml"), net).unwrap();
+    let text = |model: &str| {
+        format!(
+            "model = \"{model}\"\ninit = \"base/model.safetensors\"\ntrain = \"train\"\nval = \"val\"\nbatch = 1\nsteps = 2\nvalidate_every = 2\nval_tiles = 1\nseed = 9\n"
+        )
+    };
+    let cfg = TrainConfig::parse(&text("demod.toml")).unwrap();
+    let mut t = Trainer::new(cfg, d.path(), &d.path().join("tuned"), false, &device).unwrap();
+    assert_eq!(
+        weights(&t),
+        w0,
+        "the run starts from the init model's weights"
+    );
+    assert_eq!(t.denoiser.config.demodulate, Some(0.25));
+    t.run(|_| {}).unwrap();
+    assert_ne!(weights(&t), w0, "fine-tuning changed nothing");
+    let saved = radn_nn::store::read_config(&d.path().join("tuned/model.safetensors")).unwrap();
+    assert_eq!(
+        saved.demodulate,
+        Some(0.25),
+        "the model file keeps the setting"
+    );
+    // a network with other layers cannot start from those weights
+    let cfg = TrainConfig::parse(&text("tkpcn")).unwrap();
+    let e = Trainer::new(cfg, d.path(), &d.path().join("bad"), false, &device)
+        .err()
+        .expect("tkpcn layers from a small model were accepted")
+        .to_string();
+    assert!(
+        e.contains("base/model.safetensors") && e.contains("layers"),
+        "{e}"
+    );
+}
+
+#[test]
 fn a_few_steps_lower_the_validation_loss() {
     let d = tempfile::tempdir().unwrap();
     tiles(&d.path().join("train"), 1, 3);

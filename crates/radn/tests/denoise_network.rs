@@ -11,16 +11,30 @@ use radn_nn::burn::tensor::Device;
 use radn_nn::{Denoiser, NetConfig};
 
 fn model(dir: &Path) -> PathBuf {
-    let p = dir.join("m.safetensors");
-    let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+    model_with(dir, None)
+}
+
+/// A fresh `small` model, with albedo demodulation ε when given.
+fn model_with(dir: &Path, demodulate: Option<f32>) -> PathBuf {
+    let p = dir.join(format!("m-{demodulate:?}.safetensors"));
+    let mut config = NetConfig::preset("small").unwrap();
+    config.demodulate = demodulate;
+    let d = Denoiser::new(config, &Device::flex());
     radn_nn::store::save(&d, &p).unwrap();
     p
 }
 
 #[test]
 fn network_denoise_applies_one_kernel_to_beauty_aovs_and_alpha() {
+    // plain kernels, and kernels on albedo-demodulated colour and AOVs (alpha stays plain)
+    for demodulate in [None, Some(0.25)] {
+        one_kernel_for_beauty_aovs_and_alpha(demodulate);
+    }
+}
+
+fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>) {
     let d = tempfile::tempdir().unwrap();
-    let m = model(d.path());
+    let m = model_with(d.path(), demodulate);
     let input = with_aovs(d.path(), 0.25);
     let out = format!("{}/out/f_####.exr", d.path().display());
     let res = radn(&[
