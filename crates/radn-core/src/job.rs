@@ -30,6 +30,11 @@ pub trait WindowDenoiser: Sync {
     /// Per-frame preparation with the frame's neighbours (e.g. motion refinement); runs once per
     /// frame before any window uses it.
     fn prepare(&self, _frame: &mut Frame, _prev: Option<&Frame>, _next: Option<&Frame>) {}
+    /// Whether `prepare` changes frames; when it does not, windows use the decoded frames
+    /// themselves instead of prepared copies (a whole set of frame planes less in memory).
+    fn prepares_frames(&self) -> bool {
+        false
+    }
     /// Whether `prepare` needs the neighbours (so they are decoded one frame further out).
     fn prepare_needs_neighbours(&self) -> bool {
         false
@@ -113,7 +118,9 @@ impl SequenceJob {
             r
         };
         let mut report = JobReport::default();
-        let mut raw: BTreeMap<usize, (Frame, ExrFile)> = BTreeMap::new();
+        // decoded frames of the windows in flight; a frame's whole file (every layer, for its
+        // output) is decoded again when it is written rather than held for the whole window
+        let mut raw: BTreeMap<usize, Frame> = BTreeMap::new();
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let mut size: Option<(usize, usize)> = None;
         for pos in 0..n {
@@ -125,34 +132,36 @@ impl SequenceJob {
             // decode what this window needs, once
             for k in pos.saturating_sub(reach)..(pos + reach + 1).min(n) {
                 if let std::collections::btree_map::Entry::Vacant(e) = raw.entry(k) {
-                    let (f, file) = self.reader.read(&self.inputs[k].1)?;
+                    let (f, _) = self.reader.read(&self.inputs[k].1)?;
                     let (w, h) = *size.get_or_insert((f.width(), f.height()));
                     f.ensure_size(w, h)?;
                     report.repaired += f.repaired;
-                    e.insert((f, file));
+                    e.insert(f);
                 }
             }
             for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
+                if !method.prepares_frames() {
+                    break;
+                }
                 if let std::collections::btree_map::Entry::Vacant(e) = prepared.entry(k) {
-                    let mut f = raw[&k].0.clone();
-                    let prev = k.checked_sub(1).and_then(|j| raw.get(&j)).map(|x| &x.0);
-                    let next = raw.get(&(k + 1)).map(|x| &x.0);
+                    let mut f = raw[&k].clone();
+                    let prev = k.checked_sub(1).and_then(|j| raw.get(&j));
+                    let next = raw.get(&(k + 1));
                     method.prepare(&mut f, prev, next);
                     e.insert(f);
                 }
             }
             let idx = window_indices(pos, n, r);
-            let window: Vec<Option<&Frame>> =
-                idx.iter().map(|i| i.map(|i| &prepared[&i])).collect();
+            let frame_at = |i: usize| match method.prepares_frames() {
+                true => &prepared[&i],
+                false => &raw[&i],
+            };
+            let window: Vec<Option<&Frame>> = idx.iter().map(|i| i.map(frame_at)).collect();
             let out = method.denoise(&window)?;
-            let (frame, file) = &raw[&pos];
-            write_result(
-                file.clone(),
-                frame,
-                &out,
-                &self.outputs[pos],
-                self.output_kind,
-            )?;
+            let frame = &raw[&pos];
+            let file = ExrFile::read(&self.inputs[pos].1)?;
+            frame.ensure_size(file.width(), file.height())?;
+            write_result(file, frame, &out, &self.outputs[pos], self.output_kind)?;
             report.written += 1;
             // forget frames no later window needs
             raw.retain(|&k, _| k + reach > pos);

@@ -10,7 +10,7 @@ use radn_core::Plane;
 
 use crate::config::INPUT_CHANNELS;
 use crate::demod::Demodulation;
-use crate::input::features;
+use crate::input::{depth_scale, features_in, Region};
 use crate::model::Denoiser;
 
 /// A trained network as a sequence method.
@@ -43,7 +43,6 @@ impl NetworkDenoiser {
     /// Denoises an aligned window: colour, then every AOV and alpha with the same kernels.
     pub fn denoise_aligned(&self, win: &AlignedWindow) -> Denoised {
         let c = win.centre();
-        let (w, h) = (c.color.width(), c.color.height());
         let t = win.frames.len();
         // every signal stacked along channels: colour, AOVs, alpha
         let mut chans = 3;
@@ -53,16 +52,20 @@ impl NetworkDenoiser {
         if has_alpha {
             chans += 1;
         }
-        let mut values = Vec::with_capacity(t * chans * w * h);
-        for f in &win.frames {
-            values.extend_from_slice(f.color.data());
-            for a in &f.aovs {
-                values.extend_from_slice(a.data());
+        // the window's values (colour, AOVs, alpha of every frame) for one tile's region
+        let values = |r: Region| {
+            let mut v = Vec::with_capacity(t * chans * r.pixels());
+            for f in &win.frames {
+                r.crop(&f.color, &mut v);
+                for a in &f.aovs {
+                    r.crop(a, &mut v);
+                }
+                if let Some(a) = &f.alpha {
+                    r.crop(a, &mut v);
+                }
             }
-            if let Some(a) = &f.alpha {
-                values.extend_from_slice(a.data());
-            }
-        }
+            v
+        };
         // colour and every RGB AOV are demodulated by albedo when the model asks for it
         let mut rgb = vec![0];
         let mut at = 3;
@@ -73,7 +76,7 @@ impl NetworkDenoiser {
             at += n;
         }
         let demod = self.denoiser.config.demodulate;
-        let out = self.run_tiled(win, &values, chans, |p, v, x| match demod {
+        let out = self.run_tiled(win, values, chans, |p, v, x| match demod {
             Some(eps) => {
                 let d = Demodulation::new(x, eps, rgb.clone(), chans);
                 d.remodulate(p.apply(d.demodulate(v)))
@@ -100,26 +103,27 @@ impl NetworkDenoiser {
     /// Fig. 6): `frames` planes summing to 1 at every pixel.
     pub fn utilization(&self, win: &AlignedWindow) -> Vec<Plane> {
         let t = win.frames.len();
-        let ones = vec![0.0f32; t * win.centre().color.pixels()];
-        let mass = self.run_tiled(win, &ones, 1, |p, _, _| p.frame_mass(t));
+        let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
+        let mass = self.run_tiled(win, zeros, 1, |p, _, _| p.frame_mass(t));
         (0..t).map(|k| mass.select_channels(k, 1)).collect()
     }
 
     /// Runs the network tile by tile (each tile with a halo of the receptive field, clamped to
     /// the image, so the result does not depend on the tiling) and assembles `out_channels`
     /// planes from `f(prediction, values, features)`, `values` being `[1, T, chans, h, w]`
-    /// crops of `values` (`[T, chans, H, W]`) and `features` the network input of the crop.
+    /// from `values(region)` and `features` the network input of the region. Features and
+    /// values exist for one tile at a time, never for the whole frame.
     fn run_tiled(
         &self,
         win: &AlignedWindow,
-        values: &[f32],
+        values: impl Fn(Region) -> Vec<f32>,
         chans: usize,
         f: impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
     ) -> Plane {
         let c = win.centre();
         let (w, h) = (c.color.width(), c.color.height());
         let t = win.frames.len();
-        let feats = features(win);
+        let depth_ref = depth_scale(win);
         let halo = self.denoiser.receptive_radius();
         let (tw, th) = match (halo, self.tile) {
             (Some(_), tile) if tile > 0 => (tile.min(w), tile.min(h)),
@@ -136,26 +140,21 @@ impl NetworkDenoiser {
                 let (rx0, ry0) = (x0.saturating_sub(halo), y0.saturating_sub(halo));
                 let (rx1, ry1) = ((x1 + halo).min(w), (y1 + halo).min(h));
                 let (rw, rh) = (rx1 - rx0, ry1 - ry0);
-                let crop = |data: &[f32], planes: usize| -> Vec<f32> {
-                    let mut v = Vec::with_capacity(planes * rw * rh);
-                    for p in 0..planes {
-                        for y in ry0..ry1 {
-                            v.extend_from_slice(
-                                &data[p * w * h + y * w + rx0..p * w * h + y * w + rx1],
-                            );
-                        }
-                    }
-                    v
+                let region = Region {
+                    x0: rx0,
+                    y0: ry0,
+                    x1: rx1,
+                    y1: ry1,
                 };
                 let x = Tensor::<5>::from_data(
                     TensorData::new(
-                        crop(&feats, t * INPUT_CHANNELS),
+                        features_in(win, depth_ref, region),
                         [1, t, INPUT_CHANNELS, rh, rw],
                     ),
                     &self.device,
                 );
                 let v = Tensor::<5>::from_data(
-                    TensorData::new(crop(values, t * chans), [1, t, chans, rh, rw]),
+                    TensorData::new(values(region), [1, t, chans, rh, rw]),
                     &self.device,
                 );
                 let res = f(&self.denoiser.predict(x.clone(), self.threshold), v, &x);

@@ -290,6 +290,10 @@ impl crate::job::WindowDenoiser for ClassicDenoiser {
         self.radius
     }
 
+    fn prepares_frames(&self) -> bool {
+        self.params.refine.is_some()
+    }
+
     fn prepare_needs_neighbours(&self) -> bool {
         self.params.refine.is_some()
     }
