@@ -596,8 +596,13 @@ impl Trainer {
     /// and at the end.
     pub fn run(&mut self, mut on_step: impl FnMut(&Progress)) -> Result<()> {
         if self.state.step == 0 {
+            // the starting point is a candidate too: a fine-tune (`init`) that never improves
+            // on it leaves its starting model as best.safetensors
             let v = self.validate()?;
             self.log("val", v.loss, Some(v.psnr), None)?;
+            self.state.best_val = Some(v.loss);
+            store::save(&self.denoiser, &self.out.join("best.safetensors"))?;
+            self.checkpoint()?;
             on_step(&Progress {
                 step: 0,
                 loss: f64::NAN,
