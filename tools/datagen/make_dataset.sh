@@ -8,7 +8,8 @@ out="${1:-/work/data/radn}"
 cd "$here"
 py=python3
 $py -m radn_datagen dataset --split train --scenes "${TRAIN_SCENES:-48}" --frames 1-8 --res 256x256 --spp 32 --out "$out/train"
-$py -m radn_datagen dataset --split val   --scenes "${VAL_SCENES:-6}"  --frames 1-8 --res 256x256 --spp 32 --out "$out/val"
+$py -m radn_datagen dataset --split val   --scenes "${VAL_SCENES:-6}"  --frames 1-8 --res 256x256 --spp 32 \
+    --reference-spp 256 --reference-frames 4-4 --out "$out/val"
 $py -m radn_datagen dataset --split test  --scenes "${TEST_SCENES:-6}"  --frames 1-8 --res 256x256 --spp 32 \
     --reference-spp 512 --reference-frames 4-5 --out "$out/test"
 # pseudo-references from the least noisy level, by the classic denoiser

@@ -118,9 +118,9 @@ impl SequenceJob {
             r
         };
         let mut report = JobReport::default();
-        // decoded frames of the windows in flight; a frame's whole file (every layer, for its
-        // output) is decoded again when it is written rather than held for the whole window
-        let mut raw: BTreeMap<usize, Frame> = BTreeMap::new();
+        // decoded frames of the windows in flight, each with its file (every layer) until its
+        // output is written: every input is decoded once
+        let mut raw: BTreeMap<usize, (Frame, Option<ExrFile>)> = BTreeMap::new();
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let mut size: Option<(usize, usize)> = None;
         for pos in 0..n {
@@ -132,11 +132,11 @@ impl SequenceJob {
             // decode what this window needs, once
             for k in pos.saturating_sub(reach)..(pos + reach + 1).min(n) {
                 if let std::collections::btree_map::Entry::Vacant(e) = raw.entry(k) {
-                    let (f, _) = self.reader.read(&self.inputs[k].1)?;
+                    let (f, file) = self.reader.read(&self.inputs[k].1)?;
                     let (w, h) = *size.get_or_insert((f.width(), f.height()));
                     f.ensure_size(w, h)?;
                     report.repaired += f.repaired;
-                    e.insert(f);
+                    e.insert((f, Some(file)));
                 }
             }
             for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
@@ -144,9 +144,9 @@ impl SequenceJob {
                     break;
                 }
                 if let std::collections::btree_map::Entry::Vacant(e) = prepared.entry(k) {
-                    let mut f = raw[&k].clone();
-                    let prev = k.checked_sub(1).and_then(|j| raw.get(&j));
-                    let next = raw.get(&(k + 1));
+                    let mut f = raw[&k].0.clone();
+                    let prev = k.checked_sub(1).and_then(|j| raw.get(&j)).map(|x| &x.0);
+                    let next = raw.get(&(k + 1)).map(|x| &x.0);
                     method.prepare(&mut f, prev, next);
                     e.insert(f);
                 }
@@ -154,13 +154,13 @@ impl SequenceJob {
             let idx = window_indices(pos, n, r);
             let frame_at = |i: usize| match method.prepares_frames() {
                 true => &prepared[&i],
-                false => &raw[&i],
+                false => &raw[&i].0,
             };
             let window: Vec<Option<&Frame>> = idx.iter().map(|i| i.map(frame_at)).collect();
             let out = method.denoise(&window)?;
-            let frame = &raw[&pos];
-            let file = ExrFile::read(&self.inputs[pos].1)?;
-            frame.ensure_size(file.width(), file.height())?;
+            drop(window);
+            let (frame, file) = raw.get_mut(&pos).expect("the window's centre was decoded");
+            let file = file.take().expect("each frame is written once");
             write_result(file, frame, &out, &self.outputs[pos], self.output_kind)?;
             report.written += 1;
             // forget frames no later window needs

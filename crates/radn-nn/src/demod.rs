@@ -115,7 +115,7 @@ mod tests {
         // constant lighting 2.0 on a texture alternating albedo 0.2 / 0.8: a plain 3-tap box
         // average blurs the texture; demodulated, it returns it (up to the ε offset)
         let (t, w) = (1, 6);
-        let albedo = |_: usize, x: usize| if x % 2 == 0 { 0.2 } else { 0.8 };
+        let albedo = |_: usize, x: usize| if x.is_multiple_of(2) { 0.2 } else { 0.8 };
         let feats = features(t, w, albedo);
         let colour: Vec<f32> = (0..3)
             .flat_map(|_| (0..w).map(move |x| 2.0 * albedo(0, x)))
