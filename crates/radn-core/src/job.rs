@@ -117,6 +117,7 @@ impl SequenceJob {
         } else {
             r
         };
+        let prepares = method.prepares_frames();
         let mut report = JobReport::default();
         // decoded frames of the windows in flight, each with its file (every layer) until its
         // output is written: every input is decoded once
@@ -139,20 +140,19 @@ impl SequenceJob {
                     e.insert((f, Some(file)));
                 }
             }
-            for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
-                if !method.prepares_frames() {
-                    break;
-                }
-                if let std::collections::btree_map::Entry::Vacant(e) = prepared.entry(k) {
-                    let mut f = raw[&k].0.clone();
-                    let prev = k.checked_sub(1).and_then(|j| raw.get(&j)).map(|x| &x.0);
-                    let next = raw.get(&(k + 1)).map(|x| &x.0);
-                    method.prepare(&mut f, prev, next);
-                    e.insert(f);
+            if prepares {
+                for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
+                    if let std::collections::btree_map::Entry::Vacant(e) = prepared.entry(k) {
+                        let mut f = raw[&k].0.clone();
+                        let prev = k.checked_sub(1).and_then(|j| raw.get(&j)).map(|x| &x.0);
+                        let next = raw.get(&(k + 1)).map(|x| &x.0);
+                        method.prepare(&mut f, prev, next);
+                        e.insert(f);
+                    }
                 }
             }
             let idx = window_indices(pos, n, r);
-            let frame_at = |i: usize| match method.prepares_frames() {
+            let frame_at = |i: usize| match prepares {
                 true => &prepared[&i],
                 false => &raw[&i].0,
             };

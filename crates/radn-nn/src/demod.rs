@@ -9,6 +9,8 @@
 
 use burn::tensor::Tensor;
 
+use crate::model::Prediction;
+
 /// First albedo channel in a frame's input features (after log colour).
 const ALBEDO: usize = 3;
 
@@ -79,6 +81,15 @@ impl Demodulation {
         let t = self.factor.dims()[1];
         let [b, c, h, w] = filtered.dims();
         filtered * self.full_factor(t / 2..t / 2 + 1).reshape([b, c, h, w])
+    }
+}
+
+/// The prediction's kernels applied to `values` `[B, T, C, H, W]`, through `demod` when the
+/// network demodulates: the one place inference and validation filter a window.
+pub fn filter(pred: &Prediction, values: Tensor<5>, demod: Option<&Demodulation>) -> Tensor<4> {
+    match demod {
+        Some(d) => d.remodulate(pred.apply(d.demodulate(values))),
+        None => pred.apply(values),
     }
 }
 

@@ -9,7 +9,7 @@ use radn_core::job::{Denoised, WindowDenoiser};
 use radn_core::Plane;
 
 use crate::config::INPUT_CHANNELS;
-use crate::demod::Demodulation;
+use crate::demod::{filter, Demodulation};
 use crate::input::{depth_scale, features_in, Region};
 use crate::model::Denoiser;
 
@@ -75,13 +75,10 @@ impl NetworkDenoiser {
             }
             at += n;
         }
-        let demod = self.denoiser.config.demodulate;
-        let out = self.run_tiled(win, values, chans, |p, v, x| match demod {
-            Some(eps) => {
-                let d = Demodulation::new(x, eps, rgb.clone(), chans);
-                d.remodulate(p.apply(d.demodulate(v)))
-            }
-            None => p.apply(v),
+        let eps = self.denoiser.config.demodulate;
+        let out = self.run_tiled(win, values, chans, |p, v, x| {
+            let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
+            filter(p, v, demod.as_ref())
         });
         let color = out.select_channels(0, 3);
         let mut at = 3;

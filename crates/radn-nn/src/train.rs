@@ -447,10 +447,7 @@ impl Trainer {
                 frames,
             )
             .into_scalar::<f32>() as f64;
-            let out = match &demod {
-                Some(d) => d.remodulate(pred.apply(d.demodulate(b.values))),
-                None => pred.apply(b.values),
-            };
+            let out = crate::demod::filter(&pred, b.values, demod.as_ref());
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)

@@ -86,6 +86,14 @@ fn prepare_is_deterministic_for_a_seed() {
     );
 }
 
+/// A folder with `train` (one window's tiles) and `val` tile sets, for short runs.
+fn one_window_tile_sets() -> tempfile::TempDir {
+    let d = tempfile::tempdir().unwrap();
+    tiles(&d.path().join("train"), 1, 1);
+    tiles(&d.path().join("val"), 2, 1);
+    d
+}
+
 /// Copies a run folder (its checkpoint files) to start a second run from the same point.
 fn copy_run(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
@@ -101,9 +109,7 @@ fn copy_run(from: &Path, to: &Path) {
 
 #[test]
 fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
-    let d = tempfile::tempdir().unwrap();
-    tiles(&d.path().join("train"), 1, 1);
-    tiles(&d.path().join("val"), 2, 1);
+    let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
     // a start shared by both runs: step 0, checkpointed
     let start = Trainer::new(config(4), d.path(), &d.path().join("start"), false, &device).unwrap();
@@ -168,9 +174,7 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
 
 #[test]
 fn fine_tuning_starts_from_the_init_model_and_may_change_kernel_settings() {
-    let d = tempfile::tempdir().unwrap();
-    tiles(&d.path().join("train"), 1, 1);
-    tiles(&d.path().join("val"), 2, 1);
+    let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
     let base = Trainer::new(config(2), d.path(), &d.path().join("base"), false, &device).unwrap();
     base.checkpoint().unwrap();
@@ -240,9 +244,7 @@ fn a_few_steps_lower_the_validation_loss() {
 
 #[test]
 fn the_perceptual_loss_trains_with_user_supplied_vgg_weights() {
-    let d = tempfile::tempdir().unwrap();
-    tiles(&d.path().join("train"), 1, 1);
-    tiles(&d.path().join("val"), 2, 1);
+    let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
     radn_nn::vgg::Vgg19::new(&Device::flex())
         .save_torchvision(&d.path().join("vgg19.safetensors"))
