@@ -5,9 +5,13 @@ use rayon::prelude::*;
 
 use crate::confidence::{confidence, ConfidenceParams, Guides};
 use crate::frame::Frame;
-use crate::motion::{compose, invert, on_screen, round_trip_error};
+use std::ops::Range;
+
+use crate::motion::{
+    compose_bands, invert_band, on_screen, round_trip_error_bands, vertical_reach, Band,
+};
 use crate::plane::Plane;
-use crate::warp::{mix_with_centre, warp_plane};
+use crate::warp::{mix_with_centre, warp_band};
 
 /// Options for aligning a window.
 #[derive(Clone, Copy, Debug)]
@@ -73,15 +77,136 @@ impl AlignedWindow {
     }
 }
 
+/// Rows `y0..y0 + frame.height()` of a frame `full_height` rows tall: what banded alignment
+/// reads of each frame of a window, so memory follows the band, not the frame.
+#[derive(Clone, Copy, Debug)]
+pub struct FrameBand<'a> {
+    /// The frame's rows (every plane cropped alike).
+    pub frame: &'a Frame,
+    /// The frame row of the band's first row.
+    pub y0: usize,
+    /// The frame's height.
+    pub full_height: usize,
+}
+
+impl<'a> FrameBand<'a> {
+    /// A whole frame as a band.
+    pub fn whole(frame: &'a Frame) -> Self {
+        Self {
+            frame,
+            y0: 0,
+            full_height: frame.height(),
+        }
+    }
+
+    fn of<'p>(&self, plane: &'p Plane) -> Band<'p> {
+        Band {
+            plane,
+            y0: self.y0,
+            full_height: self.full_height,
+        }
+    }
+}
+
+/// How many rows a frame's motion fields move a pixel at most (see
+/// [`crate::motion::vertical_reach`]): all banded alignment needs to know of a frame before
+/// reading it band by band.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct MotionReach {
+    /// Of the field to the previous frame.
+    pub prev: usize,
+    /// Of the field to the next frame.
+    pub next: usize,
+}
+
+impl MotionReach {
+    /// The reach of a frame's (or a band's) fields.
+    pub fn of(frame: &Frame) -> Self {
+        let r = |p: &Option<Plane>| p.as_ref().map_or(0, vertical_reach);
+        Self {
+            prev: r(&frame.motion_prev),
+            next: r(&frame.motion_next),
+        }
+    }
+
+    /// The larger reach of two (a frame's bands combined).
+    pub fn max(self, other: Self) -> Self {
+        Self {
+            prev: self.prev.max(other.prev),
+            next: self.next.max(other.next),
+        }
+    }
+}
+
+/// The reach of each hop of a window (the `reach` of [`window_band_rows`]) from its frames'
+/// motion reach: the hop into frame k is described by k's field towards the centre and by its
+/// neighbour's field towards k (either may be the one alignment uses). `None`: beyond the
+/// sequence.
+pub fn hop_reach(window: &[Option<MotionReach>]) -> Vec<usize> {
+    let t = window.len();
+    let r = t / 2;
+    (0..t)
+        .map(|k| {
+            let (near, here) = match k.cmp(&r) {
+                std::cmp::Ordering::Less => {
+                    (window[k + 1].map(|m| m.prev), window[k].map(|m| m.next))
+                }
+                std::cmp::Ordering::Greater => {
+                    (window[k - 1].map(|m| m.next), window[k].map(|m| m.prev))
+                }
+                std::cmp::Ordering::Equal => (None, None),
+            };
+            near.unwrap_or(0).max(here.unwrap_or(0))
+        })
+        .collect()
+}
+
+/// The frame rows each frame of a window must hold for banded alignment of the centre rows
+/// `centre` to equal whole-frame alignment. `reach[k]` is how many rows the one-frame hop
+/// between window frame k and its neighbour towards the centre can move (the larger vertical
+/// motion of the two fields that describe it, [`crate::motion::vertical_reach`]); `reach[r]`
+/// is unused. Each hop adds its reach plus two rows (the bilinear neighbour and the 3×3
+/// prefilter of the confidence guides).
+pub fn window_band_rows(
+    centre: Range<usize>,
+    reach: &[usize],
+    full_height: usize,
+) -> Vec<Range<usize>> {
+    let t = reach.len();
+    let r = t / 2;
+    let mut rows = vec![centre.clone(); t];
+    for dir in [-1i64, 1] {
+        let mut cur = centre.clone();
+        for step in 1..=r {
+            let k = (r as i64 + dir * step as i64) as usize;
+            let grow = reach[k] + 2;
+            cur = cur.start.saturating_sub(grow)..(cur.end + grow).min(full_height);
+            rows[k] = cur.clone();
+        }
+    }
+    rows
+}
+
 /// Aligns a window of frames onto its centre. `window[k]` is `None` for frames beyond the
 /// ends of the sequence: they repeat the nearest available frame with zero confidence. The
 /// window length must be odd and its centre present.
 pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedWindow {
+    let bands: Vec<Option<FrameBand>> = window.iter().map(|f| f.map(FrameBand::whole)).collect();
+    align_bands(&bands, params)
+}
+
+/// [`align_window`] for a band of the centre frame's rows: the result covers the centre band's
+/// rows and equals those rows of whole-frame alignment, except within two rows of a band edge
+/// that is not a frame edge (the confidence guides' prefilter needs the row beyond). Side
+/// frames must hold the rows [`window_band_rows`] gives.
+pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> AlignedWindow {
     let t = window.len();
     assert!(t % 2 == 1, "window length must be odd");
     let r = t / 2;
-    let centre = window[r].expect("the centre frame of a window must exist");
+    let cb = window[r].expect("the centre frame of a window must exist");
+    let centre = cb.frame;
     let (w, h) = (centre.width(), centre.height());
+    let full_h = cb.full_height;
     let guides_c = Guides::new(
         &centre.color,
         centre.albedo.as_ref(),
@@ -113,37 +238,53 @@ pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedW
             let (Some(from), Some(to)) = (window[prev_idx], window[idx]) else {
                 break; // beyond the sequence: filled in below
             };
-            // one hop from frame `from` to frame `to`, defined on `from`
-            let (hop, back) = if dir < 0 {
-                hop_fields(from.motion_prev.as_ref(), to.motion_next.as_ref(), params)
+            // one hop from frame `from` to frame `to`, defined on `from`'s rows
+            let (native, other_way) = if dir < 0 {
+                (&from.frame.motion_prev, &to.frame.motion_next)
             } else {
-                hop_fields(from.motion_next.as_ref(), to.motion_prev.as_ref(), params)
+                (&from.frame.motion_next, &to.frame.motion_prev)
             };
-            let Some(hop) = hop else { break };
+            let (hop, back) = match (native, other_way) {
+                (Some(n), o) => (n.clone(), o.as_ref()),
+                (None, Some(o)) => (
+                    invert_band(
+                        to.of(o),
+                        from.y0,
+                        from.frame.height(),
+                        params.invert_iterations,
+                    ),
+                    None,
+                ),
+                (None, None) => break,
+            };
             // positions reached so far, then one more hop
-            let landed = compose(&flow, &hop);
-            let hop_err = back.as_ref().map(|b| round_trip_error(&hop, b));
-            let new_valid = step_validity(&valid, &landed, w, h);
+            let flow_c = cb.of(&flow);
+            let landed = compose_bands(flow_c, from.of(&hop));
+            let hop_err = back.map(|b| round_trip_error_bands(from.of(&hop), to.of(b)));
+            let new_valid = step_validity(&valid, &landed, w, cb.y0, full_h);
             err = match (err, hop_err) {
-                (Some(e), Some(he)) => Some(add_sampled(&e, &he, &flow)),
+                (Some(e), Some(he)) => Some(add_sampled(&e, from.of(&he), flow_c)),
                 _ => None,
             };
             flow = landed;
             valid = new_valid;
+            let flow_c = cb.of(&flow);
+            let tf = to.frame;
             let guides_w = Guides::new(
-                &to.color,
-                to.albedo.as_ref(),
-                to.normal.as_ref(),
-                to.depth.as_ref(),
+                &tf.color,
+                tf.albedo.as_ref(),
+                tf.normal.as_ref(),
+                tf.depth.as_ref(),
             );
+            let warp = |p: &Plane| warp_band(to.of(p), flow_c);
             let warped_guides = Guides {
-                color: warp_plane(&guides_w.color, &flow),
-                albedo: guides_w.albedo.as_ref().map(|p| warp_plane(p, &flow)),
-                normal: guides_w.normal.as_ref().map(|p| warp_plane(p, &flow)),
+                color: warp(&guides_w.color),
+                albedo: guides_w.albedo.as_ref().map(warp),
+                normal: guides_w.normal.as_ref().map(warp),
                 depth: guides_w
                     .depth
                     .as_ref()
-                    .map(|p| warp_nearest_depth(p, &flow)),
+                    .map(|p| warp_nearest_depth(to.of(p), flow_c)),
             };
             let conf = confidence(
                 &guides_c,
@@ -155,16 +296,12 @@ pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedW
             );
             let mut f = AlignedFrame {
                 offset: dir * step as i32,
-                color: warp_plane(&to.color, &flow),
-                alpha: to.alpha.as_ref().map(|p| warp_plane(p, &flow)),
-                albedo: to.albedo.as_ref().map(|p| warp_plane(p, &flow)),
-                normal: to.normal.as_ref().map(|p| warp_plane(p, &flow)),
+                color: warp(&tf.color),
+                alpha: tf.alpha.as_ref().map(warp),
+                albedo: tf.albedo.as_ref().map(warp),
+                normal: tf.normal.as_ref().map(warp),
                 depth: warped_guides.depth,
-                aovs: to
-                    .aovs
-                    .iter()
-                    .map(|a| warp_plane(&a.plane, &flow))
-                    .collect(),
+                aovs: tf.aovs.iter().map(|a| warp(&a.plane)).collect(),
                 confidence: conf,
                 flow: flow.clone(),
             };
@@ -201,21 +338,6 @@ pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedW
     }
 }
 
-/// The hop field (native or derived by inversion) and, when both directions are native, the
-/// field back for the consistency check.
-fn hop_fields(
-    native: Option<&Plane>,
-    other_way: Option<&Plane>,
-    params: &AlignParams,
-) -> (Option<Plane>, Option<Plane>) {
-    match (native, other_way) {
-        (Some(n), Some(o)) => (Some(n.clone()), Some(o.clone())),
-        (Some(n), None) => (Some(n.clone()), None),
-        (None, Some(o)) => (Some(invert(o, params.invert_iterations)), None),
-        (None, None) => (None, None),
-    }
-}
-
 fn mix_frame(f: &mut AlignedFrame, c: &AlignedFrame) {
     mix_with_centre(&mut f.color, &c.color, &f.confidence);
     for (a, b) in [
@@ -234,8 +356,8 @@ fn mix_frame(f: &mut AlignedFrame, c: &AlignedFrame) {
 }
 
 /// Validity after one more hop: still valid and the new landing point is on the image.
-fn step_validity(valid: &Plane, landed: &Plane, w: usize, h: usize) -> Plane {
-    let mut out = Plane::zeros(w, h, 1);
+fn step_validity(valid: &Plane, landed: &Plane, w: usize, y0: usize, full_h: usize) -> Plane {
+    let mut out = Plane::zeros(w, valid.height(), 1);
     out.data_mut()
         .par_chunks_mut(w)
         .enumerate()
@@ -244,9 +366,9 @@ fn step_validity(valid: &Plane, landed: &Plane, w: usize, h: usize) -> Plane {
                 let ok = valid.get(x, y, 0) > 0.0
                     && on_screen(
                         w,
-                        h,
+                        full_h,
                         x as f32 + landed.get(x, y, 0),
-                        y as f32 + landed.get(x, y, 1),
+                        (y + y0) as f32 + landed.get(x, y, 1),
                     );
                 *o = if ok { 1.0 } else { 0.0 };
             }
@@ -255,8 +377,8 @@ fn step_validity(valid: &Plane, landed: &Plane, w: usize, h: usize) -> Plane {
 }
 
 /// `acc(x) + hop_err(x + flow(x))`: accumulates a per-hop error along the path.
-fn add_sampled(acc: &Plane, hop_err: &Plane, flow: &Plane) -> Plane {
-    let mut out = warp_plane(hop_err, flow);
+fn add_sampled(acc: &Plane, hop_err: Band, flow: Band) -> Plane {
+    let mut out = warp_band(hop_err, flow);
     out.data_mut()
         .par_iter_mut()
         .zip(acc.data())
@@ -266,18 +388,20 @@ fn add_sampled(acc: &Plane, hop_err: &Plane, flow: &Plane) -> Plane {
 
 /// Warps depth taking, of the four bilinear neighbours, the one closest to the bilinear value,
 /// so silhouettes do not produce depths halfway between foreground and background.
-fn warp_nearest_depth(src: &Plane, flow: &Plane) -> Plane {
-    let (w, h) = (src.width(), src.height());
+fn warp_nearest_depth(src: Band, flow: Band) -> Plane {
+    let (w, h) = (flow.plane.width(), flow.plane.height());
+    let full_h = src.full_height;
     let mut out = Plane::zeros(w, h, 1);
     out.data_mut()
         .par_chunks_mut(w)
         .enumerate()
         .for_each(|(y, row)| {
             for (x, o) in row.iter_mut().enumerate() {
-                let px = (x as f32 + flow.get(x, y, 0)).clamp(0.0, (w - 1) as f32);
-                let py = (y as f32 + flow.get(x, y, 1)).clamp(0.0, (h - 1) as f32);
+                let px = (x as f32 + flow.plane.get(x, y, 0)).clamp(0.0, (w - 1) as f32);
+                let py = ((y + flow.y0) as f32 + flow.plane.get(x, y, 1))
+                    .clamp(0.0, (full_h - 1) as f32);
                 let (x0, y0) = (px.floor() as usize, py.floor() as usize);
-                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
+                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(full_h - 1));
                 let (fx, fy) = (px - x0 as f32, py - y0 as f32);
                 // the neighbour with the largest bilinear weight
                 let sx = if fx < 0.5 { x0 } else { x1 };

@@ -3,8 +3,10 @@
 
 use std::collections::HashMap;
 use std::io::Read;
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 
+use exr::block::reader::ChunksReader;
 use exr::prelude::*;
 use half::f16;
 
@@ -85,6 +87,133 @@ impl ExrFile {
                 path: path.clone(),
                 detail: describe_exr_error(e),
             })?;
+        let file = Self::from_image(path, image);
+        file.check_layers()?;
+        Ok(file)
+    }
+
+    /// Reads rows `rows` of every part and channel, decoding only the blocks that hold them:
+    /// what banded denoising reads, so memory follows the band rather than the frame. The
+    /// result is for reading channels from (its parts are `rows.len()` rows tall), not for
+    /// writing back.
+    pub fn read_rows(path: impl AsRef<Path>, rows: Range<usize>) -> Result<Self> {
+        let path = path.as_ref().to_path_buf();
+        check_magic(&path)?;
+        let decode = |e: exr::error::Error| Error::Decode {
+            path: path.clone(),
+            detail: describe_exr_error(e),
+        };
+        let file = std::fs::File::open(&path).map_err(|source| Error::Open {
+            path: path.clone(),
+            source,
+        })?;
+        let reader = exr::block::read(std::io::BufReader::new(file), false).map_err(decode)?;
+        let headers = reader.headers().to_vec();
+        let first = headers.first().ok_or_else(|| Error::Decode {
+            path: path.clone(),
+            detail: "the file has no parts".into(),
+        })?;
+        let (w, h) = (first.layer_size.width(), first.layer_size.height());
+        if rows.start >= rows.end || rows.end > h {
+            return Err(Error::Unsupported {
+                path: path.clone(),
+                detail: format!("rows {}..{} asked of a {h}-row image", rows.start, rows.end),
+            });
+        }
+        if headers.iter().any(|hd| hd.deep) {
+            return Err(Error::Unsupported {
+                path: path.clone(),
+                detail: "it holds deep data, which radn does not denoise".into(),
+            });
+        }
+        let n = w * rows.len();
+        let mut samples: Vec<Vec<FlatSamples>> = headers
+            .iter()
+            .map(|hd| {
+                hd.channels
+                    .list
+                    .iter()
+                    .map(|c| match c.sample_type {
+                        SampleType::F16 => FlatSamples::F16(vec![f16::ZERO; n]),
+                        SampleType::F32 => FlatSamples::F32(vec![0.0; n]),
+                        SampleType::U32 => FlatSamples::U32(vec![0; n]),
+                    })
+                    .collect()
+            })
+            .collect();
+        let wanted = rows.clone();
+        let chunks = reader
+            .filter_chunks(false, move |_, _, b| {
+                b.level == Vec2(0, 0)
+                    && b.pixel_position.y() < wanted.end
+                    && b.pixel_position.y() + b.pixel_size.height() > wanted.start
+            })
+            .map_err(decode)?;
+        let same_size = headers.iter().all(|hd| hd.layer_size == first.layer_size);
+        chunks
+            .decompress_sequential(false, |meta, block| {
+                let header = &meta.headers[block.index.layer];
+                if !same_size {
+                    return Ok(()); // refused below with the sizes named
+                }
+                for line in block.lines(&header.channels) {
+                    let y = line.location.position.y();
+                    if !rows.contains(&y) {
+                        continue;
+                    }
+                    let at = (y - rows.start) * w + line.location.position.x();
+                    let count = line.location.sample_count;
+                    match &mut samples[block.index.layer][line.location.channel] {
+                        FlatSamples::F16(v) => {
+                            line.read_samples_into_slice(&mut v[at..at + count])?
+                        }
+                        FlatSamples::F32(v) => {
+                            line.read_samples_into_slice(&mut v[at..at + count])?
+                        }
+                        FlatSamples::U32(v) => {
+                            line.read_samples_into_slice(&mut v[at..at + count])?
+                        }
+                    }
+                }
+                Ok(())
+            })
+            .map_err(decode)?;
+        let layer_data = headers
+            .iter()
+            .zip(samples)
+            .map(|(hd, data)| {
+                let list = hd
+                    .channels
+                    .list
+                    .iter()
+                    .zip(data)
+                    .map(|(c, sample_data)| AnyChannel {
+                        name: c.name.clone(),
+                        sample_data,
+                        quantize_linearly: c.quantize_linearly,
+                        sampling: c.sampling,
+                    })
+                    .collect();
+                Layer {
+                    channel_data: AnyChannels { list },
+                    attributes: hd.own_attributes.clone(),
+                    size: if same_size {
+                        Vec2(w, rows.len())
+                    } else {
+                        hd.layer_size
+                    },
+                    encoding: Encoding {
+                        compression: hd.compression,
+                        blocks: Blocks::ScanLines,
+                        line_order: hd.line_order,
+                    },
+                }
+            })
+            .collect();
+        let image: FlatImage = Image {
+            attributes: first.shared_attributes.clone(),
+            layer_data,
+        };
         let file = Self::from_image(path, image);
         file.check_layers()?;
         Ok(file)
@@ -550,6 +679,31 @@ mod format_tests {
     }
 
     type SmallVecChannels = exr::prelude::SmallVec<[AnyChannel<FlatSamples>; 4]>;
+
+    #[test]
+    fn reading_rows_gives_those_rows_of_every_part() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("mp.exr");
+        multipart(&p);
+        let whole = ExrFile::read(&p).unwrap();
+        // bands that cut 16-pixel tiles and 16-line ZIP blocks in the middle, and the last row
+        for rows in [0..24, 5..21, 15..17, 23..24] {
+            let band = ExrFile::read_rows(&p, rows.clone()).unwrap();
+            assert_eq!((band.width(), band.height()), (40, rows.len()));
+            assert_eq!(band.channel_names(), whole.channel_names());
+            for name in whole.channel_names() {
+                assert_eq!(band.channel_kind(&name), whole.channel_kind(&name));
+                let all = whole.channel_f32(&name).unwrap();
+                assert_eq!(
+                    band.channel_f32(&name).unwrap(),
+                    all[rows.start * 40..rows.end * 40],
+                    "{name} rows {rows:?}"
+                );
+            }
+        }
+        let err = ExrFile::read_rows(&p, 20..30).unwrap_err().to_string();
+        assert!(err.contains("mp.exr") && err.contains("20..30"), "{err}");
+    }
 
     #[test]
     fn multipart_tiled_half_and_scanline_float_read_and_round_trip() {

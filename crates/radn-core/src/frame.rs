@@ -11,6 +11,26 @@ use crate::plane::Plane;
 /// Depth given to background pixels whose depth is +Inf.
 pub const FAR_DEPTH: f32 = 1.0e10;
 
+/// Adds a depth plane's geometry depths (finite, positive, not background) to a running
+/// (sum, count): the centre frame's mean depth normalises the network's depth feature. A
+/// running sum, so that a frame read band by band adds up to exactly its whole-frame value.
+pub fn add_geometry_depths(depth: &Plane, acc: (f64, usize)) -> (f64, usize) {
+    depth
+        .data()
+        .iter()
+        .filter(|&&z| z > 0.0 && z < 0.5 * FAR_DEPTH)
+        .fold(acc, |(s, n), &z| (s + z as f64, n + 1))
+}
+
+/// The mean of a (sum, count) from [`add_geometry_depths`]; 1 without geometry.
+pub fn mean_geometry_depth((sum, n): (f64, usize)) -> f32 {
+    if n == 0 {
+        1.0
+    } else {
+        (sum / n as f64) as f32
+    }
+}
+
 /// An extra buffer (AOV) carried through denoising with the beauty's kernels.
 #[derive(Clone, Debug)]
 pub struct Aov {
@@ -74,6 +94,33 @@ impl Frame {
             });
         }
         Ok(())
+    }
+
+    /// Rows `rows` of every plane: the band of this frame banded alignment reads.
+    pub fn rows(&self, rows: std::ops::Range<usize>) -> Frame {
+        let cut = |p: &Option<Plane>| p.as_ref().map(|p| p.rows(rows.clone()));
+        Frame {
+            path: self.path.clone(),
+            color: self.color.rows(rows.clone()),
+            alpha: cut(&self.alpha),
+            albedo: cut(&self.albedo),
+            normal: cut(&self.normal),
+            depth: cut(&self.depth),
+            motion_prev: cut(&self.motion_prev),
+            motion_next: cut(&self.motion_next),
+            aovs: self
+                .aovs
+                .iter()
+                .map(|a| Aov {
+                    name: a.name.clone(),
+                    channels: a.channels.clone(),
+                    plane: a.plane.rows(rows.clone()),
+                })
+                .collect(),
+            color_channels: self.color_channels.clone(),
+            alpha_channel: self.alpha_channel.clone(),
+            repaired: self.repaired,
+        }
     }
 
     /// A frame holding only the given planes, for tests and synthetic data.
@@ -157,6 +204,12 @@ impl FrameReader {
         let file = ExrFile::read(path)?;
         let frame = self.frame_from(&file)?;
         Ok((frame, file))
+    }
+
+    /// Reads rows `rows` of one file into a frame `rows.len()` rows tall, decoding only the
+    /// blocks that hold them (banded denoising).
+    pub fn read_rows(&self, path: &Path, rows: std::ops::Range<usize>) -> Result<Frame> {
+        self.frame_from(&ExrFile::read_rows(path, rows)?)
     }
 
     /// Extracts a frame from an already decoded file.

@@ -5,10 +5,13 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
-use crate::align::window_indices;
+use std::ops::Range;
+use std::path::Path;
+
+use crate::align::{hop_reach, window_band_rows, window_indices, FrameBand, MotionReach};
 use crate::error::{Error, Result};
 use crate::exr_file::{ExrFile, SampleKind};
-use crate::frame::{Frame, FrameReader};
+use crate::frame::{add_geometry_depths, mean_geometry_depth, Frame, FrameReader};
 use crate::output::{ensure_not_input, ensure_writable_dir};
 use crate::plane::Plane;
 
@@ -41,7 +44,70 @@ pub trait WindowDenoiser: Sync {
     }
     /// Denoises `window[radius]`; `None` marks frames beyond the sequence ends.
     fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised>;
+    /// The method's band-by-band form, when it has one: the job then reads and denoises each
+    /// frame in horizontal bands, so memory follows the band, not the frame.
+    fn banded(&self) -> Option<&dyn BandDenoiser> {
+        None
+    }
 }
+
+/// A method that denoises a frame band by band from bands of its window, with exactly the
+/// result of denoising whole frames (the network: its receptive field is finite, and aligning
+/// a band needs only the rows the motion reaches).
+pub trait BandDenoiser: Sync {
+    /// Output rows per band.
+    fn band_rows(&self) -> usize;
+    /// Rows of the centre frame beyond a band's output rows that denoising the band reads.
+    fn halo(&self) -> usize;
+    /// Denoises rows `out` (band-local) of the centre band of `window`, whose bands hold the
+    /// rows [`crate::align::window_band_rows`] gives; `centre` describes the whole centre frame.
+    fn denoise_band(
+        &self,
+        window: &[Option<FrameBand>],
+        out: Range<usize>,
+        centre: &FrameStats,
+    ) -> Result<Denoised>;
+}
+
+/// What band-by-band denoising needs to know of a whole frame before reading it band by band,
+/// gathered in one pass over its bands.
+#[derive(Clone, Debug)]
+pub struct FrameStats {
+    /// How far its motion fields reach, in rows.
+    pub reach: MotionReach,
+    /// (sum, count) of its geometry depths ([`crate::frame::add_geometry_depths`]).
+    pub depth: Option<(f64, usize)>,
+    /// NaN/Inf samples repaired in it.
+    pub repaired: usize,
+}
+
+impl FrameStats {
+    /// Reads a frame band by band (`rows` rows at a time) and gathers its statistics.
+    pub fn gather(reader: &FrameReader, path: &Path, height: usize, rows: usize) -> Result<Self> {
+        let mut stats = FrameStats {
+            reach: MotionReach::default(),
+            depth: None,
+            repaired: 0,
+        };
+        for y0 in (0..height).step_by(rows.max(1)) {
+            let band = reader.read_rows(path, y0..(y0 + rows).min(height))?;
+            stats.reach = stats.reach.max(MotionReach::of(&band));
+            if let Some(d) = &band.depth {
+                stats.depth = Some(add_geometry_depths(d, stats.depth.unwrap_or((0.0, 0))));
+            }
+            stats.repaired += band.repaired;
+        }
+        Ok(stats)
+    }
+
+    /// The frame's mean geometry depth (1 without depth).
+    pub fn mean_depth(&self) -> f32 {
+        self.depth.map_or(1.0, mean_geometry_depth)
+    }
+}
+
+/// Rows per read when gathering a frame's statistics (a multiple of every EXR block height).
+const STATS_ROWS: usize = 64;
 
 /// One sequence to denoise.
 pub struct SequenceJob {
@@ -71,7 +137,8 @@ pub struct JobReport {
 impl SequenceJob {
     /// Checks before any work: no output may be an input, every output folder must be writable,
     /// and the inputs must be EXR files of one size (read from their headers).
-    pub fn validate(&self) -> Result<()> {
+    /// Returns the frames' size.
+    pub fn validate(&self) -> Result<(usize, usize)> {
         let inputs: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
         for out in &self.outputs {
             ensure_not_input(out, &inputs)?;
@@ -100,7 +167,10 @@ impl SequenceJob {
                 });
             }
         }
-        Ok(())
+        first.ok_or_else(|| Error::Unsupported {
+            path: PathBuf::new(),
+            detail: "the sequence has no frames".into(),
+        })
     }
 
     /// Runs the job; `progress` is called after each frame with (done, total).
@@ -109,7 +179,10 @@ impl SequenceJob {
         method: &dyn WindowDenoiser,
         mut progress: impl FnMut(usize, usize),
     ) -> Result<JobReport> {
-        self.validate()?;
+        let (_, height) = self.validate()?;
+        if let Some(banded) = method.banded() {
+            return self.run_banded(method.radius(), banded, height, progress);
+        }
         let n = self.inputs.len();
         let r = method.radius();
         let reach = if method.prepare_needs_neighbours() {
@@ -172,8 +245,120 @@ impl SequenceJob {
     }
 }
 
-/// Writes denoised buffers over the input's own channels, keeping everything else; `kind`
-/// overrides the storage type of the denoised channels.
+impl SequenceJob {
+    /// [`SequenceJob::run`] band by band: each output frame is denoised in bands of rows, each
+    /// band from only the rows of its window's frames that the band reaches (decoded for it and
+    /// dropped after), so memory follows the band's size rather than the frame's.
+    fn run_banded(
+        &self,
+        r: usize,
+        method: &dyn BandDenoiser,
+        height: usize,
+        mut progress: impl FnMut(usize, usize),
+    ) -> Result<JobReport> {
+        let n = self.inputs.len();
+        let mut report = JobReport::default();
+        let mut stats: BTreeMap<usize, FrameStats> = BTreeMap::new();
+        let band = method.band_rows().max(1);
+        let halo = method.halo();
+        for pos in 0..n {
+            if !self.overwrite && self.outputs[pos].exists() {
+                report.skipped += 1;
+                progress(pos + 1, n);
+                continue;
+            }
+            let idx = window_indices(pos, n, r);
+            for &k in idx.iter().flatten() {
+                if let std::collections::btree_map::Entry::Vacant(e) = stats.entry(k) {
+                    let s =
+                        FrameStats::gather(&self.reader, &self.inputs[k].1, height, STATS_ROWS)?;
+                    report.repaired += s.repaired;
+                    e.insert(s);
+                }
+            }
+            let reach: Vec<Option<MotionReach>> =
+                idx.iter().map(|i| i.map(|k| stats[&k].reach)).collect();
+            let hops = hop_reach(&reach);
+            let mut out: Option<Denoised> = None;
+            let mut names: Option<Frame> = None;
+            for y0 in (0..height).step_by(band) {
+                let y1 = (y0 + band).min(height);
+                let centre = y0.saturating_sub(halo)..(y1 + halo).min(height);
+                let rows = window_band_rows(centre.clone(), &hops, height);
+                let crops = idx
+                    .iter()
+                    .zip(&rows)
+                    .map(|(i, rows)| {
+                        i.map(|k| self.reader.read_rows(&self.inputs[k].1, rows.clone()))
+                            .transpose()
+                    })
+                    .collect::<Result<Vec<Option<Frame>>>>()?;
+                let bands: Vec<Option<FrameBand>> = crops
+                    .iter()
+                    .zip(&rows)
+                    .map(|(f, rows)| {
+                        f.as_ref().map(|frame| FrameBand {
+                            frame,
+                            y0: rows.start,
+                            full_height: height,
+                        })
+                    })
+                    .collect();
+                let part = method.denoise_band(
+                    &bands,
+                    y0 - centre.start..y1 - centre.start,
+                    &stats[&pos],
+                )?;
+                let out = out.get_or_insert_with(|| Denoised {
+                    color: Plane::zeros(part.color.width(), height, 3),
+                    alpha: part
+                        .alpha
+                        .as_ref()
+                        .map(|a| Plane::zeros(a.width(), height, 1)),
+                    aovs: part
+                        .aovs
+                        .iter()
+                        .map(|a| Plane::zeros(a.width(), height, a.channels()))
+                        .collect(),
+                });
+                put_rows(&mut out.color, &part.color, y0);
+                if let (Some(a), Some(b)) = (&mut out.alpha, &part.alpha) {
+                    put_rows(a, b, y0);
+                }
+                for (a, b) in out.aovs.iter_mut().zip(&part.aovs) {
+                    put_rows(a, b, y0);
+                }
+                drop(bands);
+                if names.is_none() {
+                    names = crops.into_iter().nth(r).flatten();
+                }
+            }
+            let (out, names) = (
+                out.expect("a frame has at least one band"),
+                names.expect("the centre frame was read"),
+            );
+            let file = ExrFile::read(&self.inputs[pos].1)?;
+            write_result(file, &names, &out, &self.outputs[pos], self.output_kind)?;
+            report.written += 1;
+            stats.retain(|&k, _| k + r > pos);
+            progress(pos + 1, n);
+        }
+        Ok(report)
+    }
+}
+
+/// Copies a band's rows into a whole-frame plane from row `y0` on.
+fn put_rows(dst: &mut Plane, band: &Plane, y0: usize) {
+    let w = dst.width();
+    let (n, m) = (dst.pixels(), band.pixels());
+    for c in 0..dst.channels() {
+        dst.data_mut()[c * n + y0 * w..c * n + y0 * w + m].copy_from_slice(band.channel(c));
+    }
+}
+
+/// Writes denoised buffers over the input's own channels (named by `frame`, which may be any
+/// band of it), keeping everything else; `kind` overrides the storage type of the denoised
+/// channels.
 pub fn write_result(
     mut file: ExrFile,
     frame: &Frame,
@@ -181,13 +366,13 @@ pub fn write_result(
     path: &std::path::Path,
     kind: Option<SampleKind>,
 ) -> Result<()> {
-    if out.color.width() != frame.width() || out.color.height() != frame.height() {
+    if out.color.width() != file.width() || out.color.height() != file.height() {
         return Err(Error::Incompatible {
             what: "denoised result".into(),
             a_w: out.color.width(),
             a_h: out.color.height(),
-            b_w: frame.width(),
-            b_h: frame.height(),
+            b_w: file.width(),
+            b_h: file.height(),
         });
     }
     let mut put = |name: &str, data: &[f32]| {

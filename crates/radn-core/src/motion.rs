@@ -5,23 +5,75 @@ use rayon::prelude::*;
 
 use crate::plane::Plane;
 
+/// Rows `y0..y0 + plane.height()` of a frame `full_height` rows tall: a horizontal band of a
+/// frame's plane, sampled in the frame's coordinates. Banded alignment reads only the rows a
+/// band of output needs, yet samples (and clamps at the frame's edges) exactly as a whole frame.
+#[derive(Clone, Copy, Debug)]
+pub struct Band<'a> {
+    /// The band's rows.
+    pub plane: &'a Plane,
+    /// The frame row of the band's first row.
+    pub y0: usize,
+    /// The frame's height.
+    pub full_height: usize,
+}
+
+impl<'a> Band<'a> {
+    /// A whole plane as a band.
+    pub fn whole(plane: &'a Plane) -> Self {
+        Self {
+            plane,
+            y0: 0,
+            full_height: plane.height(),
+        }
+    }
+
+    /// Bilinear lookup of channel `c` at frame position (x, y), edges of the *frame* repeated.
+    /// The position, after clamping to the frame, must lie within the band (its rows and the
+    /// next one), which banded alignment guarantees by reading rows as far as motion reaches.
+    #[inline]
+    pub fn bilinear(&self, c: usize, x: f32, y: f32) -> f32 {
+        let p = self.plane;
+        let w = p.width();
+        let h = self.full_height;
+        let xf = x.clamp(0.0, (w - 1) as f32);
+        let yf = y.clamp(0.0, (h - 1) as f32);
+        let x0 = xf.floor() as usize;
+        let y0 = yf.floor() as usize;
+        let x1 = (x0 + 1).min(w - 1);
+        let y1 = (y0 + 1).min(h - 1);
+        let fx = xf - x0 as f32;
+        let fy = yf - y0 as f32;
+        let last = p.height() - 1;
+        let (r0, r1) = (
+            y0.saturating_sub(self.y0).min(last),
+            y1.saturating_sub(self.y0).min(last),
+        );
+        // the row below is read only with a non-zero weight
+        debug_assert!(
+            y0 >= self.y0 && y0 - self.y0 <= last && (fy == 0.0 || y1 - self.y0 <= last),
+            "band rows {}..{} do not hold row {y0}",
+            self.y0,
+            self.y0 + p.height()
+        );
+        let ch = p.channel(c);
+        let a = ch[r0 * w + x0] * (1.0 - fx) + ch[r0 * w + x1] * fx;
+        let b = ch[r1 * w + x0] * (1.0 - fx) + ch[r1 * w + x1] * fx;
+        a * (1.0 - fy) + b * fy
+    }
+
+    /// The value of channel `c` at frame pixel (x, y), which must lie within the band.
+    #[inline]
+    pub fn get(&self, x: usize, y: usize, c: usize) -> f32 {
+        self.plane.get(x, y - self.y0, c)
+    }
+}
+
 /// Bilinear lookup of channel `c` at continuous position (x, y), pixel centres at integers;
 /// positions outside the plane repeat the edge.
 #[inline]
 pub fn bilinear(plane: &Plane, c: usize, x: f32, y: f32) -> f32 {
-    let (w, h) = (plane.width(), plane.height());
-    let xf = x.clamp(0.0, (w - 1) as f32);
-    let yf = y.clamp(0.0, (h - 1) as f32);
-    let x0 = xf.floor() as usize;
-    let y0 = yf.floor() as usize;
-    let x1 = (x0 + 1).min(w - 1);
-    let y1 = (y0 + 1).min(h - 1);
-    let fx = xf - x0 as f32;
-    let fy = yf - y0 as f32;
-    let ch = plane.channel(c);
-    let a = ch[y0 * w + x0] * (1.0 - fx) + ch[y0 * w + x1] * fx;
-    let b = ch[y1 * w + x0] * (1.0 - fx) + ch[y1 * w + x1] * fx;
-    a * (1.0 - fy) + b * fy
+    Band::whole(plane).bilinear(c, x, y)
 }
 
 /// True when position (x, y) lies on the image (within the outer pixels' footprint).
@@ -33,7 +85,12 @@ pub fn on_screen(width: usize, height: usize, x: f32, y: f32) -> bool {
 /// Chains two displacement fields: first `a` (defined on this frame), then `b` (defined on the
 /// frame `a` leads to, sampled where `a` lands).
 pub fn compose(a: &Plane, b: &Plane) -> Plane {
-    let (w, h) = (a.width(), a.height());
+    compose_bands(Band::whole(a), Band::whole(b))
+}
+
+/// [`compose`] on bands: the result covers `a`'s rows; `b` must hold every row `a` reaches.
+pub fn compose_bands(a: Band, b: Band) -> Plane {
+    let (w, h) = (a.plane.width(), a.plane.height());
     let mut out = Plane::zeros(w, h, 2);
     let (ox, oy) = out.data_mut().split_at_mut(w * h);
     ox.par_chunks_mut(w)
@@ -41,12 +98,12 @@ pub fn compose(a: &Plane, b: &Plane) -> Plane {
         .enumerate()
         .for_each(|(y, (rx, ry))| {
             for x in 0..w {
-                let dx = a.get(x, y, 0);
-                let dy = a.get(x, y, 1);
+                let dx = a.plane.get(x, y, 0);
+                let dy = a.plane.get(x, y, 1);
                 let px = x as f32 + dx;
-                let py = y as f32 + dy;
-                rx[x] = dx + bilinear(b, 0, px, py);
-                ry[x] = dy + bilinear(b, 1, px, py);
+                let py = (y + a.y0) as f32 + dy;
+                rx[x] = dx + b.bilinear(0, px, py);
+                ry[x] = dy + b.bilinear(1, px, py);
             }
         });
     out
@@ -56,20 +113,26 @@ pub fn compose(a: &Plane, b: &Plane) -> Plane {
 /// `g` on frame B with `g(x) = y - x` where `y + f(y) = x`. Used when a renderer writes motion
 /// in only one direction.
 pub fn invert(f: &Plane, iterations: usize) -> Plane {
-    let (w, h) = (f.width(), f.height());
-    let mut out = Plane::zeros(w, h, 2);
-    let (ox, oy) = out.data_mut().split_at_mut(w * h);
+    invert_band(Band::whole(f), 0, f.height(), iterations)
+}
+
+/// [`invert`] for frame B's rows `y0..y0 + height` from a band of `f`, which must hold the rows
+/// the inverse reaches (as far as `f`'s largest vertical displacement, plus one).
+pub fn invert_band(f: Band, y0: usize, height: usize, iterations: usize) -> Plane {
+    let w = f.plane.width();
+    let mut out = Plane::zeros(w, height, 2);
+    let (ox, oy) = out.data_mut().split_at_mut(w * height);
     ox.par_chunks_mut(w)
         .zip(oy.par_chunks_mut(w))
         .enumerate()
         .for_each(|(y, (rx, ry))| {
             for x in 0..w {
-                let (tx, ty) = (x as f32, y as f32);
-                let mut px = tx - f.get(x, y, 0);
-                let mut py = ty - f.get(x, y, 1);
+                let (tx, ty) = (x as f32, (y + y0) as f32);
+                let mut px = tx - f.get(x, y + y0, 0);
+                let mut py = ty - f.get(x, y + y0, 1);
                 for _ in 0..iterations {
-                    px = tx - bilinear(f, 0, px, py);
-                    py = ty - bilinear(f, 1, px, py);
+                    px = tx - f.bilinear(0, px, py);
+                    py = ty - f.bilinear(1, px, py);
                 }
                 rx[x] = px - tx;
                 ry[x] = py - ty;
@@ -78,10 +141,26 @@ pub fn invert(f: &Plane, iterations: usize) -> Plane {
     out
 }
 
+/// The largest vertical displacement of a field, in whole pixels rounded up: how many rows
+/// beyond a band one hop along it can reach.
+pub fn vertical_reach(field: &Plane) -> usize {
+    field
+        .channel(1)
+        .iter()
+        .filter(|v| v.is_finite())
+        .fold(0.0f32, |m, v| m.max(v.abs()))
+        .ceil() as usize
+}
+
 /// Forward–backward consistency error in pixels: how far `there` (this → other) followed by
 /// `back` (other → this, sampled where `there` lands) ends from the start.
 pub fn round_trip_error(there: &Plane, back: &Plane) -> Plane {
-    let r = compose(there, back);
+    round_trip_error_bands(Band::whole(there), Band::whole(back))
+}
+
+/// [`round_trip_error`] on bands: covers `there`'s rows; `back` must hold every row reached.
+pub fn round_trip_error_bands(there: Band, back: Band) -> Plane {
+    let r = compose_bands(there, back);
     let (w, h) = (r.width(), r.height());
     let mut out = Plane::zeros(w, h, 1);
     out.data_mut()

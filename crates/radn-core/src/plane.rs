@@ -177,6 +177,18 @@ impl Plane {
         Plane::from_vec(w, h, channels, data)
     }
 
+    /// Rows `rows` of every channel, as a plane of its own (a horizontal band).
+    pub fn rows(&self, rows: std::ops::Range<usize>) -> Plane {
+        assert!(rows.end <= self.height, "rows beyond the plane");
+        let n = self.pixels();
+        let (a, b) = (rows.start * self.width, rows.end * self.width);
+        let mut data = Vec::with_capacity((b - a) * self.channels);
+        for c in 0..self.channels {
+            data.extend_from_slice(&self.data[c * n + a..c * n + b]);
+        }
+        Plane::from_vec(self.width, rows.len(), self.channels, data)
+    }
+
     /// Copies out the rectangle starting at (x0, y0) of the given size; pixels outside
     /// the plane repeat the nearest edge pixel.
     pub fn crop_clamped(&self, x0: isize, y0: isize, width: usize, height: usize) -> Plane {
@@ -204,6 +216,15 @@ mod tests {
         assert_eq!(p.get(2, 1, 1), 112.0);
         assert_eq!(p.channel(1)[0], 100.0);
         assert_eq!(p.data()[3 * 2 + 4], 111.0);
+    }
+
+    #[test]
+    fn rows_cut_every_channel_alike() {
+        let p = Plane::from_fn(3, 5, 2, |x, y, c| (c * 100 + y * 10 + x) as f32);
+        let b = p.rows(1..4);
+        assert_eq!((b.width(), b.height(), b.channels()), (3, 3, 2));
+        assert_eq!(b.get(2, 0, 1), 112.0);
+        assert_eq!(b.get(0, 2, 0), 30.0);
     }
 
     #[test]

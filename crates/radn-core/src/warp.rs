@@ -2,20 +2,31 @@
 
 use rayon::prelude::*;
 
-use crate::motion::bilinear;
+use crate::motion::Band;
 use crate::plane::Plane;
 
 /// Warps `src` onto the frame `flow` is defined on: `out(x) = src(x + flow(x))`, bilinear,
 /// repeating edge pixels for lookups that fall off the image (their confidence is 0 anyway).
 pub fn warp_plane(src: &Plane, flow: &Plane) -> Plane {
-    let (w, h) = (flow.width(), flow.height());
     assert!(
-        src.width() == w && src.height() == h,
+        src.width() == flow.width() && src.height() == flow.height(),
         "warp: source and flow differ in size"
     );
-    let mut out = Plane::zeros(w, h, src.channels());
-    let n = w * h;
-    let (fx, fy) = (flow.channel(0), flow.channel(1));
+    warp_band(Band::whole(src), Band::whole(flow))
+}
+
+/// [`warp_plane`] on bands of one frame size: the result covers `flow`'s rows; `src` must hold
+/// every row the flow reaches.
+pub fn warp_band(src: Band, flow: Band) -> Plane {
+    let (w, h) = (flow.plane.width(), flow.plane.height());
+    assert_eq!(
+        src.plane.width(),
+        w,
+        "warp: source and flow differ in width"
+    );
+    let channels = src.plane.channels();
+    let mut out = Plane::zeros(w, h, channels);
+    let (fx, fy) = (flow.plane.channel(0), flow.plane.channel(1));
     out.data_mut()
         .par_chunks_mut(w)
         .enumerate()
@@ -24,10 +35,9 @@ pub fn warp_plane(src: &Plane, flow: &Plane) -> Plane {
             let y = row % h;
             for (x, d) in dst.iter_mut().enumerate() {
                 let i = y * w + x;
-                *d = bilinear(src, c, x as f32 + fx[i], y as f32 + fy[i]);
+                *d = src.bilinear(c, x as f32 + fx[i], (y + flow.y0) as f32 + fy[i]);
             }
         });
-    debug_assert_eq!(out.data().len(), n * src.channels());
     out
 }
 

@@ -2,7 +2,10 @@
 //! background. Warped side frames must match the centre frame within 1e-3 wherever the surface
 //! is visible in both, and confidence must be ~0 exactly where it is not.
 
-use radn_core::align::{align_window, AlignParams, AlignedWindow};
+use radn_core::align::{
+    align_bands, align_window, hop_reach, window_band_rows, AlignParams, AlignedWindow, FrameBand,
+    MotionReach,
+};
 use radn_core::frame::Frame;
 use radn_core::Plane;
 
@@ -304,4 +307,98 @@ fn window_is_clamped_at_sequence_ends() {
         radn_core::align::window_indices(4, 5, 2),
         vec![Some(2), Some(3), Some(4), None, None]
     );
+}
+
+/// Banded alignment reads of each frame only the rows a band of the centre frame reaches
+/// along the motion; on the band's rows (two rows in from a cut that is not a frame edge) it
+/// must give what whole-frame alignment gives, with native and inverted motion, vertical motion
+/// of several pixels per frame, and windows clamped at the sequence's start.
+#[test]
+fn banded_alignment_equals_whole_frame_alignment() {
+    let pan = |x: f32, y: f32, t: i32| Sample {
+        uv: (x + 0.7 * t as f32, y - 3.4 * t as f32),
+        tint: 1.0,
+        depth: 4.0,
+        prev: (0.7, -3.4),
+        next: (-0.7, 3.4),
+    };
+    let scenes: [(&str, &dyn Fn(f32, f32, i32) -> Sample); 2] =
+        [("pan", &pan), ("disc", &disc_scene)];
+    let mut compared = 0usize;
+    for (name, scene) in scenes {
+        for fields in ["both", "prev only", "next only"] {
+            for start in [false, true] {
+                let mut frames: Vec<Frame> = (-2..=2).map(|t| render(t, scene)).collect();
+                for f in &mut frames {
+                    match fields {
+                        "prev only" => f.motion_next = None,
+                        "next only" => f.motion_prev = None,
+                        _ => {}
+                    }
+                }
+                let window: Vec<Option<&Frame>> = frames
+                    .iter()
+                    .enumerate()
+                    .map(|(k, f)| (!start || k >= 2).then_some(f))
+                    .collect();
+                let params = AlignParams::default();
+                let whole = align_window(&window, &params);
+                let reach: Vec<Option<MotionReach>> =
+                    window.iter().map(|f| f.map(MotionReach::of)).collect();
+                let hops = hop_reach(&reach);
+                assert!(hops[4] >= 4 || name != "pan", "{hops:?}");
+                for y0 in (0..H).step_by(13) {
+                    let y1 = (y0 + 13).min(H);
+                    let centre = y0.saturating_sub(2)..(y1 + 2).min(H);
+                    let rows = window_band_rows(centre.clone(), &hops, H);
+                    let crops: Vec<Option<Frame>> = window
+                        .iter()
+                        .zip(&rows)
+                        .map(|(f, r)| f.map(|f| f.rows(r.clone())))
+                        .collect();
+                    let bands: Vec<Option<FrameBand>> = crops
+                        .iter()
+                        .zip(&rows)
+                        .map(|(f, r)| {
+                            f.as_ref().map(|frame| FrameBand {
+                                frame,
+                                y0: r.start,
+                                full_height: H,
+                            })
+                        })
+                        .collect();
+                    let banded = align_bands(&bands, &params);
+                    for (a, b) in whole.frames.iter().zip(&banded.frames) {
+                        let pairs = [
+                            (&a.color, &b.color),
+                            (&a.confidence, &b.confidence),
+                            (&a.flow, &b.flow),
+                            (a.albedo.as_ref().unwrap(), b.albedo.as_ref().unwrap()),
+                            (a.normal.as_ref().unwrap(), b.normal.as_ref().unwrap()),
+                            (a.depth.as_ref().unwrap(), b.depth.as_ref().unwrap()),
+                        ];
+                        for (pw, pb) in pairs {
+                            assert_eq!(pb.height(), centre.len());
+                            for y in y0..y1 {
+                                for c in 0..pw.channels() {
+                                    for x in 0..W {
+                                        let (u, v) =
+                                            (pw.get(x, y, c), pb.get(x, y - centre.start, c));
+                                        assert!(
+                                            (u - v).abs() <= 1e-5,
+                                            "{name}, {fields}, start {start}: frame {} row {y} \
+                                             x {x} channel {c}: whole {u}, banded {v}",
+                                            a.offset
+                                        );
+                                        compared += 1;
+                                    }
+                                }
+                            }
+                        }
+                    }
+                }
+            }
+        }
+    }
+    assert!(compared > 1_000_000, "{compared}");
 }

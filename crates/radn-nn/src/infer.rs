@@ -3,9 +3,11 @@
 //! the network's memory does not grow with the frame), applied to colour, AOVs and alpha.
 
 use burn::tensor::{Device, Tensor, TensorData};
-use radn_core::align::{align_window, AlignParams, AlignedWindow};
+use std::ops::Range;
+
+use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow, FrameBand};
 use radn_core::frame::Frame;
-use radn_core::job::{Denoised, WindowDenoiser};
+use radn_core::job::{BandDenoiser, Denoised, FrameStats, WindowDenoiser};
 use radn_core::Plane;
 
 use crate::config::INPUT_CHANNELS;
@@ -42,6 +44,19 @@ impl NetworkDenoiser {
 
     /// Denoises an aligned window: colour, then every AOV and alpha with the same kernels.
     pub fn denoise_aligned(&self, win: &AlignedWindow) -> Denoised {
+        let h = win.centre().color.height();
+        self.denoise_rows(win, depth_scale(win), 0..h)
+    }
+
+    /// Denoises rows `rows` of an aligned window (a band of a frame, whose mean depth is
+    /// `depth_ref`); rows beyond the window's own are never read, so a band must carry the
+    /// receptive field's rows around `rows` unless they are the frame's edge.
+    pub fn denoise_rows(
+        &self,
+        win: &AlignedWindow,
+        depth_ref: f32,
+        rows: Range<usize>,
+    ) -> Denoised {
         let c = win.centre();
         let t = win.frames.len();
         // every signal stacked along channels: colour, AOVs, alpha
@@ -76,7 +91,7 @@ impl NetworkDenoiser {
             at += n;
         }
         let eps = self.denoiser.config.demodulate;
-        let out = self.run_tiled(win, values, chans, |p, v, x| {
+        let out = self.run_tiled(win, depth_ref, rows, values, chans, |p, v, x| {
             let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
             filter(p, v, demod.as_ref())
         });
@@ -101,18 +116,23 @@ impl NetworkDenoiser {
     pub fn utilization(&self, win: &AlignedWindow) -> Vec<Plane> {
         let t = win.frames.len();
         let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
-        let mass = self.run_tiled(win, zeros, 1, |p, _, _| p.frame_mass(t));
+        let h = win.centre().color.height();
+        let mass = self.run_tiled(win, depth_scale(win), 0..h, zeros, 1, |p, _, _| {
+            p.frame_mass(t)
+        });
         (0..t).map(|k| mass.select_channels(k, 1)).collect()
     }
 
-    /// Runs the network tile by tile (each tile with a halo of the receptive field, clamped to
-    /// the image, so the result does not depend on the tiling) and assembles `out_channels`
-    /// planes from `f(prediction, values, features)`, `values` being `[1, T, chans, h, w]`
+    /// Runs the network tile by tile over rows `rows` (each tile with a halo of the receptive
+    /// field, clamped to the window, so the result does not depend on the tiling) and assembles
+    /// the planes of `f(prediction, values, features)`, `values` being `[1, T, chans, h, w]`
     /// from `values(region)` and `features` the network input of the region. Features and
     /// values exist for one tile at a time, never for the whole frame.
     fn run_tiled(
         &self,
         win: &AlignedWindow,
+        depth_ref: f32,
+        rows: Range<usize>,
         values: impl Fn(Region) -> Vec<f32>,
         chans: usize,
         f: impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
@@ -120,7 +140,6 @@ impl NetworkDenoiser {
         let c = win.centre();
         let (w, h) = (c.color.width(), c.color.height());
         let t = win.frames.len();
-        let depth_ref = depth_scale(win);
         let halo = self.denoiser.receptive_radius();
         let (tw, th) = match (halo, self.tile) {
             (Some(_), tile) if tile > 0 => (tile.min(w), tile.min(h)),
@@ -128,9 +147,9 @@ impl NetworkDenoiser {
         };
         let halo = halo.unwrap_or(0);
         let mut out: Option<Plane> = None;
-        let mut y0 = 0;
-        while y0 < h {
-            let y1 = (y0 + th).min(h);
+        let mut y0 = rows.start;
+        while y0 < rows.end {
+            let y1 = (y0 + th).min(rows.end);
             let mut x0 = 0;
             while x0 < w {
                 let x1 = (x0 + tw).min(w);
@@ -157,11 +176,12 @@ impl NetworkDenoiser {
                 let res = f(&self.denoiser.predict(x.clone(), self.threshold), v, &x);
                 let oc = res.dims()[1];
                 let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
-                let out = out.get_or_insert_with(|| Plane::zeros(w, h, oc));
+                let out = out.get_or_insert_with(|| Plane::zeros(w, rows.len(), oc));
                 for ch in 0..oc {
                     for y in y0..y1 {
                         let src = &res[ch * rw * rh + (y - ry0) * rw + (x0 - rx0)..][..x1 - x0];
-                        out.channel_mut(ch)[y * w + x0..y * w + x1].copy_from_slice(src);
+                        let at = (y - rows.start) * w;
+                        out.channel_mut(ch)[at + x0..at + x1].copy_from_slice(src);
                     }
                 }
                 x0 = x1;
@@ -180,6 +200,33 @@ impl WindowDenoiser for NetworkDenoiser {
     fn denoise(&self, window: &[Option<&Frame>]) -> radn_core::Result<Denoised> {
         let win = align_window(window, &self.align);
         Ok(self.denoise_aligned(&win))
+    }
+
+    fn banded(&self) -> Option<&dyn BandDenoiser> {
+        // tiles of a receptive field's halo make bands possible; UNets and `--tile 0` need
+        // whole frames
+        (self.tile > 0 && self.denoiser.receptive_radius().is_some()).then_some(self as _)
+    }
+}
+
+impl BandDenoiser for NetworkDenoiser {
+    fn band_rows(&self) -> usize {
+        self.tile
+    }
+
+    fn halo(&self) -> usize {
+        // the network's receptive field, and the two rows banded alignment gets wrong at a cut
+        self.denoiser.receptive_radius().unwrap_or(0) + 2
+    }
+
+    fn denoise_band(
+        &self,
+        window: &[Option<FrameBand>],
+        out: Range<usize>,
+        centre: &FrameStats,
+    ) -> radn_core::Result<Denoised> {
+        let win = align_bands(window, &self.align);
+        Ok(self.denoise_rows(&win, centre.mean_depth(), out))
     }
 }
 

@@ -2,7 +2,7 @@
 //! linear values kernels are applied to.
 
 use radn_core::align::AlignedWindow;
-use radn_core::frame::FAR_DEPTH;
+use radn_core::frame::{add_geometry_depths, mean_geometry_depth, FAR_DEPTH};
 
 use crate::config::INPUT_CHANNELS;
 
@@ -53,22 +53,9 @@ impl Region {
 /// The depth scale of a window: the centre frame's mean finite depth (1 without depth). One
 /// number per frame, so that tiles of a frame see the same depth features as the whole frame.
 pub fn depth_scale(win: &AlignedWindow) -> f32 {
-    win.centre()
-        .depth
-        .as_ref()
-        .map(|d| {
-            let (sum, n) = d
-                .data()
-                .iter()
-                .filter(|&&z| z > 0.0 && z < 0.5 * FAR_DEPTH)
-                .fold((0.0f64, 0usize), |(s, n), &z| (s + z as f64, n + 1));
-            if n == 0 {
-                1.0
-            } else {
-                (sum / n as f64) as f32
-            }
-        })
-        .unwrap_or(1.0)
+    win.centre().depth.as_ref().map_or(1.0, |d| {
+        mean_geometry_depth(add_geometry_depths(d, (0.0, 0)))
+    })
 }
 
 /// Per-frame network features of a window, `[T, INPUT_CHANNELS, H, W]` row-major: log colour,
