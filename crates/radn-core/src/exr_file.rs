@@ -57,7 +57,7 @@ const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
 
 /// Refuses a file that cannot be opened or does not start with the OpenEXR magic number, so a
 /// JPEG or an empty file is reported as "not an EXR" rather than as a decoder error.
-fn check_magic(path: &Path) -> Result<()> {
+pub(crate) fn check_magic(path: &Path) -> Result<()> {
     let mut magic = [0u8; 4];
     let mut f = std::fs::File::open(path).map_err(|source| Error::Open {
         path: path.to_path_buf(),
@@ -539,7 +539,7 @@ fn samples_of_kind(data: &[f32], kind: SampleKind) -> FlatSamples {
     }
 }
 
-fn describe_exr_error(e: exr::error::Error) -> String {
+pub(crate) fn describe_exr_error(e: exr::error::Error) -> String {
     match e {
         exr::error::Error::Invalid(msg) => format!("the file is corrupt or truncated ({msg})"),
         exr::error::Error::NotSupported(msg) => format!("unsupported EXR feature ({msg})"),
@@ -630,11 +630,11 @@ mod tests {
 }
 
 #[cfg(test)]
-mod format_tests {
+pub(crate) mod format_tests {
     use super::*;
 
     /// A two-part file: a tiled f16 "beauty" part with RGB and a scanline f32 "aux" part.
-    fn multipart(path: &Path) {
+    pub(crate) fn multipart(path: &Path) {
         let size = Vec2(40, 24);
         let rgb = |k: f32| -> SmallVecChannels {
             ["B", "G", "R"]

@@ -9,6 +9,7 @@ use std::ops::Range;
 use std::path::Path;
 
 use crate::align::{hop_reach, window_band_rows, window_indices, FrameBand, MotionReach};
+use crate::band_write::write_banded;
 use crate::error::{Error, Result};
 use crate::exr_file::{ExrFile, SampleKind};
 use crate::frame::{add_geometry_depths, mean_geometry_depth, Frame, FrameReader};
@@ -248,7 +249,8 @@ impl SequenceJob {
 impl SequenceJob {
     /// [`SequenceJob::run`] band by band: each output frame is denoised in bands of rows, each
     /// band from only the rows of its window's frames that the band reaches (decoded for it and
-    /// dropped after), so memory follows the band's size rather than the frame's.
+    /// dropped after), and written block by block as its rows are done, so memory follows the
+    /// band's size rather than the frame's.
     fn run_banded(
         &self,
         r: usize,
@@ -279,11 +281,10 @@ impl SequenceJob {
             let reach: Vec<Option<MotionReach>> =
                 idx.iter().map(|i| i.map(|k| stats[&k].reach)).collect();
             let hops = hop_reach(&reach);
-            let mut out: Option<Denoised> = None;
-            let mut names: Option<Frame> = None;
-            for y0 in (0..height).step_by(band) {
-                let y1 = (y0 + band).min(height);
-                let centre = y0.saturating_sub(halo)..(y1 + halo).min(height);
+            // the channel names the result is written into, from the centre frame's first row
+            let names = self.reader.read_rows(&self.inputs[pos].1, 0..1)?;
+            let denoise_band = |out: Range<usize>| -> Result<Denoised> {
+                let centre = out.start.saturating_sub(halo)..(out.end + halo).min(height);
                 let rows = window_band_rows(centre.clone(), &hops, height);
                 let crops = idx
                     .iter()
@@ -304,55 +305,25 @@ impl SequenceJob {
                         })
                     })
                     .collect();
-                let part = method.denoise_band(
+                method.denoise_band(
                     &bands,
-                    y0 - centre.start..y1 - centre.start,
+                    out.start - centre.start..out.end - centre.start,
                     &stats[&pos],
-                )?;
-                let out = out.get_or_insert_with(|| Denoised {
-                    color: Plane::zeros(part.color.width(), height, 3),
-                    alpha: part
-                        .alpha
-                        .as_ref()
-                        .map(|a| Plane::zeros(a.width(), height, 1)),
-                    aovs: part
-                        .aovs
-                        .iter()
-                        .map(|a| Plane::zeros(a.width(), height, a.channels()))
-                        .collect(),
-                });
-                put_rows(&mut out.color, &part.color, y0);
-                if let (Some(a), Some(b)) = (&mut out.alpha, &part.alpha) {
-                    put_rows(a, b, y0);
-                }
-                for (a, b) in out.aovs.iter_mut().zip(&part.aovs) {
-                    put_rows(a, b, y0);
-                }
-                drop(bands);
-                if names.is_none() {
-                    names = crops.into_iter().nth(r).flatten();
-                }
-            }
-            let (out, names) = (
-                out.expect("a frame has at least one band"),
-                names.expect("the centre frame was read"),
-            );
-            let file = ExrFile::read(&self.inputs[pos].1)?;
-            write_result(file, &names, &out, &self.outputs[pos], self.output_kind)?;
+                )
+            };
+            write_banded(
+                &self.inputs[pos].1,
+                &self.outputs[pos],
+                &names,
+                self.output_kind,
+                band,
+                denoise_band,
+            )?;
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
             progress(pos + 1, n);
         }
         Ok(report)
-    }
-}
-
-/// Copies a band's rows into a whole-frame plane from row `y0` on.
-fn put_rows(dst: &mut Plane, band: &Plane, y0: usize) {
-    let w = dst.width();
-    let (n, m) = (dst.pixels(), band.pixels());
-    for c in 0..dst.channels() {
-        dst.data_mut()[c * n + y0 * w..c * n + y0 * w + m].copy_from_slice(band.channel(c));
     }
 }
 

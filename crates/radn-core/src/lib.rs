@@ -6,6 +6,7 @@
 //! safe outputs ([`output`]).
 
 pub mod align;
+pub mod band_write;
 pub mod confidence;
 pub mod error;
 pub mod exr_file;

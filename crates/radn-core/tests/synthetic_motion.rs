@@ -309,6 +309,9 @@ fn window_is_clamped_at_sequence_ends() {
     );
 }
 
+/// What a pixel of frame t sees.
+type Scene = dyn Fn(f32, f32, i32) -> Sample;
+
 /// Banded alignment reads of each frame only the rows a band of the centre frame reaches
 /// along the motion; on the band's rows (two rows in from a cut that is not a frame edge) it
 /// must give what whole-frame alignment gives, with native and inverted motion, vertical motion
@@ -322,8 +325,7 @@ fn banded_alignment_equals_whole_frame_alignment() {
         prev: (0.7, -3.4),
         next: (-0.7, 3.4),
     };
-    let scenes: [(&str, &dyn Fn(f32, f32, i32) -> Sample); 2] =
-        [("pan", &pan), ("disc", &disc_scene)];
+    let scenes: [(&str, &Scene); 2] = [("pan", &pan), ("disc", &disc_scene)];
     let mut compared = 0usize;
     for (name, scene) in scenes {
         for fields in ["both", "prev only", "next only"] {

@@ -73,7 +73,8 @@ pub struct Args {
     #[arg(long)]
     pub threshold: Option<f32>,
     /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
-    /// the result does not depend on it); 0 processes whole frames.
+    /// the result does not depend on it). Frames are also read, aligned and written in bands of
+    /// this many rows, so memory follows the tile, not the frame; 0 processes whole frames.
     #[arg(long, default_value_t = 256)]
     pub tile: usize,
     /// Network: run the network again on its own output this many times in all (widens the
