@@ -174,11 +174,12 @@ impl SequenceJob {
         })
     }
 
-    /// Runs the job; `progress` is called after each frame with (done, total).
+    /// Runs the job; `progress` is called with (frames done, total) after each frame, and
+    /// with fractions of a frame as bands of it are done.
     pub fn run(
         &self,
         method: &dyn WindowDenoiser,
-        mut progress: impl FnMut(usize, usize),
+        mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
         let (_, height) = self.validate()?;
         if let Some(banded) = method.banded() {
@@ -201,7 +202,7 @@ impl SequenceJob {
         for pos in 0..n {
             if !self.overwrite && self.outputs[pos].exists() {
                 report.skipped += 1;
-                progress(pos + 1, n);
+                progress((pos + 1) as f64, n);
                 continue;
             }
             // decode what this window needs, once
@@ -240,7 +241,7 @@ impl SequenceJob {
             // forget frames no later window needs
             raw.retain(|&k, _| k + reach > pos);
             prepared.retain(|&k, _| k + r > pos);
-            progress(pos + 1, n);
+            progress((pos + 1) as f64, n);
         }
         Ok(report)
     }
@@ -256,7 +257,7 @@ impl SequenceJob {
         r: usize,
         method: &dyn BandDenoiser,
         height: usize,
-        mut progress: impl FnMut(usize, usize),
+        mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
         let n = self.inputs.len();
         let mut report = JobReport::default();
@@ -266,7 +267,7 @@ impl SequenceJob {
         for pos in 0..n {
             if !self.overwrite && self.outputs[pos].exists() {
                 report.skipped += 1;
-                progress(pos + 1, n);
+                progress((pos + 1) as f64, n);
                 continue;
             }
             let idx = window_indices(pos, n, r);
@@ -305,11 +306,13 @@ impl SequenceJob {
                         })
                     })
                     .collect();
-                method.denoise_band(
+                let d = method.denoise_band(
                     &bands,
                     out.start - centre.start..out.end - centre.start,
                     &stats[&pos],
-                )
+                )?;
+                progress(pos as f64 + out.end as f64 / height as f64, n);
+                Ok(d)
             };
             write_banded(
                 &self.inputs[pos].1,
@@ -321,7 +324,7 @@ impl SequenceJob {
             )?;
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
-            progress(pos + 1, n);
+            progress((pos + 1) as f64, n);
         }
         Ok(report)
     }

@@ -208,8 +208,11 @@ pub fn run(a: Args) -> Result<()> {
                 .collect()
         };
         let job = job(&inputs, &outs, last);
-        let pb = crate::progress::frames(job.inputs.len() as u64, &format!("pass {pass}/{passes}"));
-        let r = job.run(method.as_ref(), |done, _| pb.set_position(done as u64))?;
+        let pb =
+            crate::progress::fine_frames(job.inputs.len() as u64, &format!("pass {pass}/{passes}"));
+        let r = job.run(method.as_ref(), |done, _| {
+            pb.set_position((done * crate::progress::PARTS_PER_FRAME as f64) as u64)
+        })?;
         pb.finish_and_clear();
         if last {
             report = r;

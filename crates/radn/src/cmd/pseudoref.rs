@@ -89,7 +89,9 @@ pub fn run(a: Args) -> Result<()> {
                 .map(|n| n.to_string_lossy().into_owned())
                 .unwrap_or_default(),
         );
-        let r = job.run(&method, |done, _| pb.set_position((base + done) as u64))?;
+        let r = job.run(&method, |done, _| {
+            pb.set_position(base as u64 + done as u64)
+        })?;
         written += r.written;
         skipped += r.skipped;
         base += job.inputs.len();
