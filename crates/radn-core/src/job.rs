@@ -7,6 +7,7 @@ use std::path::PathBuf;
 
 use std::ops::Range;
 use std::path::Path;
+use std::time::{Duration, Instant};
 
 use crate::align::{hop_reach, window_band_rows, window_indices, FrameBand, MotionReach};
 use crate::band_write::write_banded;
@@ -284,7 +285,10 @@ impl SequenceJob {
             let hops = hop_reach(&reach);
             // the channel names the result is written into, from the centre frame's first row
             let names = self.reader.read_rows(&self.inputs[pos].1, 0..1)?;
+            let started = Instant::now();
+            let (mut reading, mut denoising) = (Duration::ZERO, Duration::ZERO);
             let denoise_band = |out: Range<usize>| -> Result<Denoised> {
+                let t = Instant::now();
                 let centre = out.start.saturating_sub(halo)..(out.end + halo).min(height);
                 let rows = window_band_rows(centre.clone(), &hops, height);
                 let crops = idx
@@ -306,11 +310,14 @@ impl SequenceJob {
                         })
                     })
                     .collect();
+                reading += t.elapsed();
+                let t = Instant::now();
                 let d = method.denoise_band(
                     &bands,
                     out.start - centre.start..out.end - centre.start,
                     &stats[&pos],
                 )?;
+                denoising += t.elapsed();
                 progress(pos as f64 + out.end as f64 / height as f64, n);
                 Ok(d)
             };
@@ -322,6 +329,15 @@ impl SequenceJob {
                 band,
                 denoise_band,
             )?;
+            let total = started.elapsed();
+            tracing::debug!(
+                "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s",
+                self.outputs[pos].display(),
+                total.as_secs_f64(),
+                reading.as_secs_f64(),
+                denoising.as_secs_f64(),
+                (total - reading - denoising).as_secs_f64()
+            );
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
             progress((pos + 1) as f64, n);
