@@ -108,6 +108,26 @@ impl<'a> FrameBand<'a> {
     }
 }
 
+/// The bands of a window: `crops[k]` holds rows `rows[k]` of window frame k (None beyond the
+/// sequence) of frames `full_height` rows tall.
+pub fn frame_bands<'a>(
+    crops: &'a [Option<Frame>],
+    rows: &[Range<usize>],
+    full_height: usize,
+) -> Vec<Option<FrameBand<'a>>> {
+    crops
+        .iter()
+        .zip(rows)
+        .map(|(f, r)| {
+            f.as_ref().map(|frame| FrameBand {
+                frame,
+                y0: r.start,
+                full_height,
+            })
+        })
+        .collect()
+}
+
 /// How many rows a frame's motion fields move a pixel at most (see
 /// [`crate::motion::vertical_reach`]): all banded alignment needs to know of a frame before
 /// reading it band by band.

@@ -3,7 +3,6 @@
 //! block by block as bands of denoised rows arrive, so neither the file nor the denoised frame
 //! is ever held whole.
 
-use std::io::Write;
 use std::ops::Range;
 use std::path::Path;
 
@@ -89,24 +88,9 @@ pub fn write_banded(
         })
         .collect();
 
-    let dir = match output.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => std::path::PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&dir).map_err(|source| Error::Write {
-        path: dir.clone(),
-        source,
-    })?;
-    let tmp = crate::output::output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| {
-        Error::Write {
-            path: dir.clone(),
-            source,
-        }
-    })?;
-    let mut failure: Option<Error> = None;
-    {
-        let mut writer = std::io::BufWriter::new(tmp.as_file());
-        let written = exr::block::write(&mut writer, headers.into(), true, |meta, chunks| {
+    crate::output::write_atomically(output, |writer| {
+        let mut failure: Option<Error> = None;
+        let written = exr::block::write(writer, headers.into(), true, |meta, chunks| {
             let mut run = || -> Result<()> {
                 // denoised rows not yet written, from row `buf_y0`
                 let mut buf: Option<Denoised> = None;
@@ -158,17 +142,8 @@ pub fn write_banded(
         written.map_err(|e| Error::Encode {
             path: output.to_path_buf(),
             detail: describe_exr_error(e),
-        })?;
-        writer.flush().map_err(|source| Error::Write {
-            path: output.to_path_buf(),
-            source,
-        })?;
-    }
-    tmp.persist(output).map_err(|e| Error::Write {
-        path: output.to_path_buf(),
-        source: e.error,
-    })?;
-    Ok(())
+        })
+    })
 }
 
 /// For every part and channel, where its denoised values come from (None: copied as is). A

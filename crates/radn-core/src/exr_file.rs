@@ -475,40 +475,15 @@ impl ExrFile {
     /// place, so a failed or interrupted write never leaves a partial file at `path`.
     pub fn write_atomic(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
-        let dir = match path.parent() {
-            Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-            _ => PathBuf::from("."),
-        };
-        std::fs::create_dir_all(&dir).map_err(|source| Error::Write {
-            path: dir.clone(),
-            source,
-        })?;
-        let tmp = crate::output::output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| {
-            Error::Write {
-                path: dir.clone(),
-                source,
-            }
-        })?;
-        {
-            let mut writer = std::io::BufWriter::new(tmp.as_file());
+        crate::output::write_atomically(path, |w| {
             self.image
                 .write()
-                .to_buffered(&mut writer)
+                .to_buffered(w)
                 .map_err(|e| Error::Encode {
                     path: path.to_path_buf(),
                     detail: describe_exr_error(e),
-                })?;
-            use std::io::Write;
-            writer.flush().map_err(|source| Error::Write {
-                path: path.to_path_buf(),
-                source,
-            })?;
-        }
-        tmp.persist(path).map_err(|e| Error::Write {
-            path: path.to_path_buf(),
-            source: e.error,
-        })?;
-        Ok(())
+                })
+        })
     }
 }
 

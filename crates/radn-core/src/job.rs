@@ -9,7 +9,9 @@ use std::ops::Range;
 use std::path::Path;
 use std::time::{Duration, Instant};
 
-use crate::align::{hop_reach, window_band_rows, window_indices, FrameBand, MotionReach};
+use crate::align::{
+    frame_bands, hop_reach, window_band_rows, window_indices, FrameBand, MotionReach,
+};
 use crate::band_write::write_banded;
 use crate::error::{Error, Result};
 use crate::exr_file::{ExrFile, SampleKind};
@@ -299,17 +301,7 @@ impl SequenceJob {
                             .transpose()
                     })
                     .collect::<Result<Vec<Option<Frame>>>>()?;
-                let bands: Vec<Option<FrameBand>> = crops
-                    .iter()
-                    .zip(&rows)
-                    .map(|(f, rows)| {
-                        f.as_ref().map(|frame| FrameBand {
-                            frame,
-                            y0: rows.start,
-                            full_height: height,
-                        })
-                    })
-                    .collect();
+                let bands = frame_bands(&crops, &rows, height);
                 reading += t.elapsed();
                 let t = Instant::now();
                 let d = method.denoise_band(

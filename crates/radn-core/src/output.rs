@@ -36,6 +36,41 @@ pub fn output_tempfile(
     b.tempfile_in(dir)
 }
 
+/// Writes `path` through a temporary file in its folder that is renamed into place only once
+/// `write` succeeded and everything is flushed, so a failed or killed write never leaves a
+/// partial file under the output's name (nor a temporary one: it is removed on failure).
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    let dir = match path.parent() {
+        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
+        _ => PathBuf::from("."),
+    };
+    std::fs::create_dir_all(&dir).map_err(|source| Error::Write {
+        path: dir.clone(),
+        source,
+    })?;
+    let tmp = output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| Error::Write {
+        path: dir.clone(),
+        source,
+    })?;
+    {
+        let mut writer = std::io::BufWriter::new(tmp.as_file());
+        write(&mut writer)?;
+        use std::io::Write;
+        writer.flush().map_err(|source| Error::Write {
+            path: path.to_path_buf(),
+            source,
+        })?;
+    }
+    tmp.persist(path).map_err(|e| Error::Write {
+        path: path.to_path_buf(),
+        source: e.error,
+    })?;
+    Ok(())
+}
+
 /// Creates the folder of `output` if needed and proves it writable by creating and removing a
 /// temporary file in it, so a run fails before any work instead of after it.
 pub fn ensure_writable_dir(output: &Path) -> Result<()> {

@@ -3,8 +3,8 @@
 //! is visible in both, and confidence must be ~0 exactly where it is not.
 
 use radn_core::align::{
-    align_bands, align_window, hop_reach, window_band_rows, AlignParams, AlignedWindow, FrameBand,
-    MotionReach,
+    align_bands, align_window, frame_bands, hop_reach, window_band_rows, AlignParams,
+    AlignedWindow, MotionReach,
 };
 use radn_core::frame::Frame;
 use radn_core::Plane;
@@ -358,17 +358,7 @@ fn banded_alignment_equals_whole_frame_alignment() {
                         .zip(&rows)
                         .map(|(f, r)| f.map(|f| f.rows(r.clone())))
                         .collect();
-                    let bands: Vec<Option<FrameBand>> = crops
-                        .iter()
-                        .zip(&rows)
-                        .map(|(f, r)| {
-                            f.as_ref().map(|frame| FrameBand {
-                                frame,
-                                y0: r.start,
-                                full_height: H,
-                            })
-                        })
-                        .collect();
+                    let bands = frame_bands(&crops, &rows, H);
                     let banded = align_bands(&bands, &params);
                     for (a, b) in whole.frames.iter().zip(&banded.frames) {
                         let pairs = [
