@@ -131,6 +131,45 @@ pub fn time_network(
     }
 }
 
+/// Times inference (prediction and kernel application, no gradients) of a network on batches
+/// of random `tile × tile` windows: what `radn denoise` spends per tile, and whether stacking
+/// tiles into one call (batching) would pay on this machine. `forward_flops` is per batch.
+pub fn time_inference(
+    cfg: &NetConfig,
+    tile: usize,
+    batch: usize,
+    repeats: usize,
+    device: &Device,
+) -> StepTiming {
+    let d = Denoiser::new(cfg.clone(), device);
+    d.materialize();
+    let t = cfg.frames;
+    let x = Tensor::<5>::random(
+        [batch, t, INPUT_CHANNELS, tile, tile],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let v = Tensor::<5>::random(
+        [batch, t, 3, tile, tile],
+        Distribution::Uniform(0.0, 1.0),
+        device,
+    );
+    let thr = cfg.default_threshold();
+    let mut times = Vec::new();
+    for i in 0..repeats + 1 {
+        let start = Instant::now();
+        let out = d.predict(x.clone(), thr).apply(v.clone());
+        let _ = out.into_data(); // waits for the result
+        if i > 0 {
+            times.push(start.elapsed().as_secs_f64() * 1e3); // the first call warms up
+        }
+    }
+    StepTiming {
+        ms: median(times),
+        forward_flops: batch as f64 * forward_flops(cfg, tile, tile),
+    }
+}
+
 /// A bare stack of `convs` 3×3 convolutions at `width` channels.
 #[derive(Module, Debug)]
 struct Stack {

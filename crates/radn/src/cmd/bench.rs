@@ -24,9 +24,14 @@ pub struct Args {
     /// Tile size for --network.
     #[arg(long, default_value_t = 128)]
     pub tile: usize,
-    /// Tiles per training step for --network.
+    /// Tiles per training step (or per inference call) for --network.
     #[arg(long, default_value_t = 1)]
     pub batch: usize,
+    /// With --network: time inference (what `radn denoise` runs per tile, no gradients)
+    /// instead of training steps. A denoising tile is its output size plus twice the halo
+    /// (348 for 256-pixel tiles of `small`).
+    #[arg(long)]
+    pub inference: bool,
     /// Repetitions (the median is reported).
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
@@ -40,6 +45,9 @@ pub struct Args {
 /// Times decoding and alignment (or a network); prints throughput.
 pub fn run(a: Args) -> Result<()> {
     if let Some(preset) = &a.network {
+        if a.inference {
+            return inference(preset, a.tile, a.batch, a.repeat);
+        }
         return network(preset, a.tile, a.batch, a.repeat);
     }
     let input = a
@@ -133,14 +141,36 @@ pub fn run(a: Args) -> Result<()> {
 }
 
 /// Times a network preset's training step on one tile and a bare conv stack of the same shape.
-fn network(preset: &str, tile: usize, batch: usize, steps: usize) -> Result<()> {
-    use radn_nn::bench::{time_conv_stack, time_network};
-    use radn_nn::config::Backbone;
-    let cfg = if std::path::Path::new(preset).is_file() {
+/// A network preset, or a network TOML file.
+fn net_config(preset: &str) -> Result<radn_nn::NetConfig> {
+    Ok(if std::path::Path::new(preset).is_file() {
         radn_nn::NetConfig::parse(&std::fs::read_to_string(preset)?)?
     } else {
         radn_nn::NetConfig::preset(preset)?
-    };
+    })
+}
+
+/// Times inference calls of a network on batches of tiles.
+fn inference(preset: &str, tile: usize, batch: usize, repeats: usize) -> Result<()> {
+    let cfg = net_config(preset)?;
+    let device = radn_nn::burn::tensor::Device::flex();
+    let t = radn_nn::bench::time_inference(&cfg, tile, batch, repeats.max(1), &device);
+    println!(
+        "network '{preset}' inference, {batch} x {tile}x{tile} tile x {} frames, {} threads: {:.0} ms ({:.0} ms per tile, {:.3} MP/s of tile area), {:.1} GFLOP/s",
+        cfg.frames,
+        rayon::current_num_threads(),
+        t.ms,
+        t.ms / batch as f64,
+        (batch * tile * tile) as f64 / 1e6 / (t.ms * 1e-3),
+        t.forward_flops / (t.ms * 1e-3) / 1e9
+    );
+    Ok(())
+}
+
+fn network(preset: &str, tile: usize, batch: usize, steps: usize) -> Result<()> {
+    use radn_nn::bench::{time_conv_stack, time_network};
+    use radn_nn::config::Backbone;
+    let cfg = net_config(preset)?;
     let device = radn_nn::burn::tensor::Device::flex().autodiff();
     let params = radn_nn::Denoiser::new(cfg.clone(), &device).num_params();
     let net = time_network(&cfg, tile, batch, steps.max(1), &device);
