@@ -23,6 +23,9 @@ pub struct NetworkDenoiser {
     pub threshold: f32,
     /// Output tile side in pixels (0: the whole frame at once).
     pub tile: usize,
+    /// Tiles of equal size per network call (1: one at a time, the fastest on a CPU; larger
+    /// batches can pay where a call has fixed overhead, e.g. on a GPU).
+    pub batch: usize,
     /// Where the network runs.
     pub device: Device,
     /// Alignment options.
@@ -37,6 +40,7 @@ impl NetworkDenoiser {
             denoiser,
             threshold,
             tile: 256,
+            batch: 1,
             device,
             align: AlignParams::default(),
         }
@@ -125,9 +129,10 @@ impl NetworkDenoiser {
 
     /// Runs the network tile by tile over rows `rows` (each tile with a halo of the receptive
     /// field, clamped to the window, so the result does not depend on the tiling) and assembles
-    /// the planes of `f(prediction, values, features)`, `values` being `[1, T, chans, h, w]`
-    /// from `values(region)` and `features` the network input of the region. Features and
-    /// values exist for one tile at a time, never for the whole frame.
+    /// the planes of `f(prediction, values, features)`, `values` being `[B, T, chans, h, w]`
+    /// from `values(region)` and `features` the network input of the regions. Consecutive tiles
+    /// whose regions have the same size share one network call, up to `batch` of them. Features
+    /// and values exist for one call's tiles at a time, never for the whole frame.
     fn run_tiled(
         &self,
         win: &AlignedWindow,
@@ -137,59 +142,119 @@ impl NetworkDenoiser {
         chans: usize,
         f: impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
     ) -> Plane {
+        let w = win.centre().color.width();
+        let tiles = self.tiles(win, rows.clone());
+        let mut out: Option<Plane> = None;
+        for call in batches(&tiles, self.batch) {
+            let group = &tiles[call];
+            self.run_group(
+                win, depth_ref, group, &values, chans, &f, &mut out, w, &rows,
+            );
+        }
+        out.expect("at least one tile")
+    }
+
+    /// The tiles covering rows `rows` of the window, row of tiles by row of tiles, each with its
+    /// output rectangle and the region (output plus halo, clamped to the window) it reads.
+    fn tiles(&self, win: &AlignedWindow, rows: Range<usize>) -> Vec<Tile> {
         let c = win.centre();
         let (w, h) = (c.color.width(), c.color.height());
-        let t = win.frames.len();
         let halo = self.denoiser.receptive_radius();
         let (tw, th) = match (halo, self.tile) {
             (Some(_), tile) if tile > 0 => (tile.min(w), tile.min(h)),
             _ => (w, h), // whole frame: UNets, or tiling switched off
         };
         let halo = halo.unwrap_or(0);
-        let mut out: Option<Plane> = None;
-        let mut y0 = rows.start;
-        while y0 < rows.end {
+        let mut tiles = Vec::new();
+        for y0 in rows.clone().step_by(th) {
             let y1 = (y0 + th).min(rows.end);
-            let mut x0 = 0;
-            while x0 < w {
+            for x0 in (0..w).step_by(tw) {
                 let x1 = (x0 + tw).min(w);
-                let (rx0, ry0) = (x0.saturating_sub(halo), y0.saturating_sub(halo));
-                let (rx1, ry1) = ((x1 + halo).min(w), (y1 + halo).min(h));
-                let (rw, rh) = (rx1 - rx0, ry1 - ry0);
-                let region = Region {
-                    x0: rx0,
-                    y0: ry0,
-                    x1: rx1,
-                    y1: ry1,
-                };
-                let x = Tensor::<5>::from_data(
-                    TensorData::new(
-                        features_in(win, depth_ref, region),
-                        [1, t, INPUT_CHANNELS, rh, rw],
-                    ),
-                    &self.device,
-                );
-                let v = Tensor::<5>::from_data(
-                    TensorData::new(values(region), [1, t, chans, rh, rw]),
-                    &self.device,
-                );
-                let res = f(&self.denoiser.predict(x.clone(), self.threshold), v, &x);
-                let oc = res.dims()[1];
-                let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
-                let out = out.get_or_insert_with(|| Plane::zeros(w, rows.len(), oc));
-                for ch in 0..oc {
-                    for y in y0..y1 {
-                        let src = &res[ch * rw * rh + (y - ry0) * rw + (x0 - rx0)..][..x1 - x0];
-                        let at = (y - rows.start) * w;
-                        out.channel_mut(ch)[at + x0..at + x1].copy_from_slice(src);
-                    }
-                }
-                x0 = x1;
+                tiles.push(Tile {
+                    x: x0..x1,
+                    y: y0..y1,
+                    region: Region {
+                        x0: x0.saturating_sub(halo),
+                        y0: y0.saturating_sub(halo),
+                        x1: (x1 + halo).min(w),
+                        y1: (y1 + halo).min(h),
+                    },
+                });
             }
-            y0 = y1;
         }
-        out.expect("at least one tile")
+        tiles
     }
+
+    /// One network call on tiles whose regions have the same size; their output rectangles
+    /// are written into `out` (rows relative to `rows.start`, created on first use).
+    #[allow(clippy::too_many_arguments)]
+    fn run_group(
+        &self,
+        win: &AlignedWindow,
+        depth_ref: f32,
+        group: &[Tile],
+        values: &impl Fn(Region) -> Vec<f32>,
+        chans: usize,
+        f: &impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
+        out: &mut Option<Plane>,
+        w: usize,
+        rows: &Range<usize>,
+    ) {
+        let t = win.frames.len();
+        let b = group.len();
+        let (rw, rh) = group[0].region.size();
+        let mut feats = Vec::new();
+        let mut vals = Vec::new();
+        for tile in group {
+            feats.extend(features_in(win, depth_ref, tile.region));
+            vals.extend(values(tile.region));
+        }
+        let x = Tensor::<5>::from_data(
+            TensorData::new(feats, [b, t, INPUT_CHANNELS, rh, rw]),
+            &self.device,
+        );
+        let v = Tensor::<5>::from_data(TensorData::new(vals, [b, t, chans, rh, rw]), &self.device);
+        let res = f(&self.denoiser.predict(x.clone(), self.threshold), v, &x);
+        let oc = res.dims()[1];
+        let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
+        let out = out.get_or_insert_with(|| Plane::zeros(w, rows.len(), oc));
+        for (i, tile) in group.iter().enumerate() {
+            let r = tile.region;
+            let res = &res[i * oc * rw * rh..][..oc * rw * rh];
+            for ch in 0..oc {
+                for y in tile.y.clone() {
+                    let src = &res[ch * rw * rh + (y - r.y0) * rw + (tile.x.start - r.x0)..]
+                        [..tile.x.len()];
+                    let at = (y - rows.start) * w;
+                    out.channel_mut(ch)[at + tile.x.start..at + tile.x.end].copy_from_slice(src);
+                }
+            }
+        }
+    }
+}
+
+/// Splits `tiles` into runs of consecutive tiles whose regions have the same size, at most
+/// `batch` long: the tiles that can share one network call.
+fn batches(tiles: &[Tile], batch: usize) -> Vec<Range<usize>> {
+    let mut out: Vec<Range<usize>> = Vec::new();
+    for (i, tile) in tiles.iter().enumerate() {
+        match out.last_mut() {
+            Some(r)
+                if r.len() < batch.max(1) && tiles[r.start].region.size() == tile.region.size() =>
+            {
+                r.end = i + 1
+            }
+            _ => out.push(i..i + 1),
+        }
+    }
+    out
+}
+
+/// One tile of a tiled run: the output rectangle it produces and the region it reads.
+struct Tile {
+    x: Range<usize>,
+    y: Range<usize>,
+    region: Region,
 }
 
 impl WindowDenoiser for NetworkDenoiser {
@@ -260,6 +325,28 @@ mod tests {
     }
 
     #[test]
+    fn only_tiles_of_one_size_share_a_call() {
+        let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+        let mut n = NetworkDenoiser::new(d, Device::flex());
+        n.tile = 16;
+        // 70×52 with a 46-pixel halo: in each row of tiles, the tiles at x = 16 and 32 read
+        // the full width; the others read less
+        let tiles = n.tiles(&window(70, 52), 0..52);
+        assert_eq!(tiles.len(), 5 * 4);
+        for batch in [1, 2, 3, 8] {
+            let calls = batches(&tiles, batch);
+            assert_eq!(calls.iter().map(|c| c.len()).sum::<usize>(), tiles.len());
+            for c in &calls {
+                assert!(c.len() <= batch);
+                let size = tiles[c.start].region.size();
+                assert!(tiles[c.clone()].iter().all(|t| t.region.size() == size));
+            }
+            let most = calls.iter().map(|c| c.len()).max().unwrap();
+            assert_eq!(most, batch.min(2), "batch {batch}: {calls:?}");
+        }
+    }
+
+    #[test]
     fn tiled_and_whole_frame_results_agree() {
         let device = Device::flex();
         for (preset, demodulate) in [("small", None), ("tkpcn", None), ("small", Some(0.25))] {
@@ -271,8 +358,11 @@ mod tests {
             let mut n = NetworkDenoiser::new(d, device.clone());
             n.tile = 0;
             let whole = n.denoise_aligned(&win);
-            for tile in [16usize, 33] {
+            // tile 16 with batches of 3: tiles of equal regions share calls, the frame-edge
+            // tiles (smaller regions) run apart
+            for (tile, batch) in [(16usize, 1usize), (33, 1), (16, 3)] {
                 n.tile = tile;
+                n.batch = batch;
                 let tiled = n.denoise_aligned(&win);
                 for (a, b) in [
                     (&whole.color, &tiled.color),
@@ -287,7 +377,8 @@ mod tests {
                         .fold(0.0f32, f32::max);
                     assert!(
                         worst < 1e-5,
-                        "{preset} {demodulate:?}, tile {tile}: tiled and whole differ by {worst}"
+                        "{preset} {demodulate:?}, tile {tile} batch {batch}: tiled and whole \
+                         differ by {worst}"
                     );
                 }
             }

@@ -33,6 +33,11 @@ impl Region {
         }
     }
 
+    /// Width and height: regions of one size can share a network call.
+    pub fn size(&self) -> (usize, usize) {
+        (self.x1 - self.x0, self.y1 - self.y0)
+    }
+
     /// Pixels in the region.
     pub fn pixels(&self) -> usize {
         (self.x1 - self.x0) * (self.y1 - self.y0)

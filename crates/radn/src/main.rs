@@ -37,7 +37,8 @@ enum Command {
     Train(cmd::train::Args),
     /// Make pseudo-references for a rendered dataset with the classic denoiser.
     Pseudoref(cmd::pseudoref::Args),
-    /// Measure read and warp throughput on a sequence.
+    /// Measure throughput: reading and warping a sequence, the classic denoiser (--classic),
+    /// or a network's training steps and inference (--network).
     Bench(cmd::bench::Args),
 }
 

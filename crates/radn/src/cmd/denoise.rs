@@ -77,6 +77,10 @@ pub struct Args {
     /// this many rows, so memory follows the tile, not the frame; 0 processes whole frames.
     #[arg(long, default_value_t = 256)]
     pub tile: usize,
+    /// Network: tiles of equal size per network call. 1 is fastest on a CPU (measured in
+    /// docs/benchmarks.md); larger batches hold that many tiles' activations at once.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
+    pub batch: u32,
     /// Network: run the network again on its own output this many times in all (widens the
     /// temporal reach, paper section 3).
     #[arg(long, default_value_t = 1)]
@@ -252,5 +256,6 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         n.threshold = t;
     }
     n.tile = a.tile;
+    n.batch = a.batch as usize;
     Ok(n)
 }
