@@ -172,10 +172,11 @@ pub fn box_sum_into(src: &[f32], w: usize, h: usize, r: usize, tmp: &mut [f32], 
     let ri = r as isize;
     tmp.par_chunks_mut(w).enumerate().for_each(|(y, dst)| {
         let row = &src[y * w..(y + 1) * w];
-        let at = |i: isize| row[i.clamp(0, w as isize - 1) as usize];
-        let mut acc: f32 = (-ri..=ri).map(at).sum();
+        // running sums in f64: in f32 they drift along a row by the rounding of every step
+        let at = |i: isize| row[i.clamp(0, w as isize - 1) as usize] as f64;
+        let mut acc: f64 = (-ri..=ri).map(at).sum();
         for (x, d) in dst.iter_mut().enumerate() {
-            *d = acc;
+            *d = acc as f32;
             acc += at(x as isize + ri + 1) - at(x as isize - ri);
         }
     });
@@ -188,18 +189,20 @@ pub fn box_sum_into(src: &[f32], w: usize, h: usize, r: usize, tmp: &mut [f32], 
             let x1 = (x0 + CHUNK).min(w);
             let cw = x1 - x0;
             let row = |y: isize| &tmp[(y.clamp(0, h as isize - 1) as usize) * w + x0..][..cw];
-            let mut acc = vec![0f32; cw];
+            let mut acc = vec![0f64; cw];
             for y in -ri..=ri {
                 for (a, v) in acc.iter_mut().zip(row(y)) {
-                    *a += v;
+                    *a += *v as f64;
                 }
             }
             let mut block = vec![0f32; cw * h];
             for y in 0..h {
-                block[y * cw..(y + 1) * cw].copy_from_slice(&acc);
+                for (b, a) in block[y * cw..(y + 1) * cw].iter_mut().zip(&acc) {
+                    *b = *a as f32;
+                }
                 let (add, sub) = (row(y as isize + ri + 1), row(y as isize - ri));
                 for i in 0..cw {
-                    acc[i] += add[i] - sub[i];
+                    acc[i] += add[i] as f64 - sub[i] as f64;
                 }
             }
             (x0, block)

@@ -117,8 +117,9 @@ const STATS_ROWS: usize = 64;
 pub struct SequenceJob {
     /// Input frames in order: (frame number, path).
     pub inputs: Vec<(i64, PathBuf)>,
-    /// Output path for each input frame.
-    pub outputs: Vec<PathBuf>,
+    /// Output path for each input frame; `None` for a frame that is only read, as a neighbour
+    /// in the windows of the frames that are denoised.
+    pub outputs: Vec<Option<PathBuf>>,
     /// How frames are read.
     pub reader: FrameReader,
     /// Recompute frames whose output already exists.
@@ -139,17 +140,23 @@ pub struct JobReport {
 }
 
 impl SequenceJob {
+    /// The number of frames the job writes (the others are neighbours only).
+    pub fn output_count(&self) -> usize {
+        self.outputs.iter().flatten().count()
+    }
+
     /// Checks before any work: no output may be an input, every output folder must be writable,
     /// and the inputs must be EXR files of one size (read from their headers).
     /// Returns the frames' size.
     pub fn validate(&self) -> Result<(usize, usize)> {
         let inputs: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
-        for out in &self.outputs {
+        for out in self.outputs.iter().flatten() {
             ensure_not_input(out, &inputs)?;
         }
         let mut dirs: Vec<PathBuf> = self
             .outputs
             .iter()
+            .flatten()
             .filter_map(|p| p.parent().map(|d| d.join("x")))
             .collect();
         dirs.dedup();
@@ -177,8 +184,8 @@ impl SequenceJob {
         })
     }
 
-    /// Runs the job; `progress` is called with (frames done, total) after each frame, and
-    /// with fractions of a frame as bands of it are done.
+    /// Runs the job; `progress` is called with (output frames done, total) after each output
+    /// frame, and with fractions of a frame as bands of it are done.
     pub fn run(
         &self,
         method: &dyn WindowDenoiser,
@@ -202,10 +209,16 @@ impl SequenceJob {
         let mut raw: BTreeMap<usize, (Frame, Option<ExrFile>)> = BTreeMap::new();
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let mut size: Option<(usize, usize)> = None;
+        let total = self.output_count();
+        let mut done = 0;
         for pos in 0..n {
-            if !self.overwrite && self.outputs[pos].exists() {
+            let Some(output) = &self.outputs[pos] else {
+                continue; // a neighbour only
+            };
+            if !self.overwrite && output.exists() {
                 report.skipped += 1;
-                progress((pos + 1) as f64, n);
+                done += 1;
+                progress(done as f64, total);
                 continue;
             }
             // decode what this window needs, once
@@ -239,12 +252,13 @@ impl SequenceJob {
             drop(window);
             let (frame, file) = raw.get_mut(&pos).expect("the window's centre was decoded");
             let file = file.take().expect("each frame is written once");
-            write_result(file, frame, &out, &self.outputs[pos], self.output_kind)?;
+            write_result(file, frame, &out, output, self.output_kind)?;
             report.written += 1;
             // forget frames no later window needs
             raw.retain(|&k, _| k + reach > pos);
             prepared.retain(|&k, _| k + r > pos);
-            progress((pos + 1) as f64, n);
+            done += 1;
+            progress(done as f64, total);
         }
         Ok(report)
     }
@@ -267,10 +281,16 @@ impl SequenceJob {
         let mut stats: BTreeMap<usize, FrameStats> = BTreeMap::new();
         let band = method.band_rows().max(1);
         let halo = method.halo();
+        let frames = self.output_count();
+        let mut done = 0;
         for pos in 0..n {
-            if !self.overwrite && self.outputs[pos].exists() {
+            let Some(output) = &self.outputs[pos] else {
+                continue; // a neighbour only
+            };
+            if !self.overwrite && output.exists() {
                 report.skipped += 1;
-                progress((pos + 1) as f64, n);
+                done += 1;
+                progress(done as f64, frames);
                 continue;
             }
             let idx = window_indices(pos, n, r);
@@ -310,12 +330,12 @@ impl SequenceJob {
                     &stats[&pos],
                 )?;
                 denoising += t.elapsed();
-                progress(pos as f64 + out.end as f64 / height as f64, n);
+                progress(done as f64 + out.end as f64 / height as f64, frames);
                 Ok(d)
             };
             write_banded(
                 &self.inputs[pos].1,
-                &self.outputs[pos],
+                output,
                 &names,
                 self.output_kind,
                 band,
@@ -324,7 +344,7 @@ impl SequenceJob {
             let total = started.elapsed();
             tracing::debug!(
                 "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s",
-                self.outputs[pos].display(),
+                output.display(),
                 total.as_secs_f64(),
                 reading.as_secs_f64(),
                 denoising.as_secs_f64(),
@@ -332,7 +352,8 @@ impl SequenceJob {
             );
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
-            progress((pos + 1) as f64, n);
+            done += 1;
+            progress(done as f64, frames);
         }
         Ok(report)
     }

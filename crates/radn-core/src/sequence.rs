@@ -233,6 +233,60 @@ impl SequencePattern {
     }
 }
 
+impl SequencePattern {
+    /// The frames a run over `wanted` (sorted, existing frames) reads: every frame of the
+    /// sequence from the first wanted to the last, and up to `reach` more on each side (fewer
+    /// where the sequence ends). Windows at the ends of a frame range then see the neighbours
+    /// they see in a run over the whole sequence, so a shot split into ranges (on a farm, or
+    /// by hand) denoises exactly as it does whole. The sequence's frame step is that of the
+    /// files on disk; a frame missing inside the span is an error, as it is for a whole run.
+    pub fn with_context(&self, wanted: &[i64], reach: usize) -> Result<Vec<i64>> {
+        let (Some(&first), Some(&last)) = (wanted.first(), wanted.last()) else {
+            return Err(Error::EmptySequence {
+                pattern: self.text.clone(),
+            });
+        };
+        let on_disk = self.discover()?;
+        let step = on_disk
+            .windows(2)
+            .map(|w| w[1] - w[0])
+            .min()
+            .unwrap_or(1)
+            .max(1);
+        let has = |f: i64| on_disk.binary_search(&f).is_ok();
+        // extend outwards until the reach or the sequence's end; a hole before the end is a
+        // missing frame
+        let extend = |dir: i64| -> Result<i64> {
+            let mut end = if dir < 0 { first } else { last };
+            for _ in 0..reach {
+                let f = end + dir * step;
+                if has(f) {
+                    end = f;
+                } else if on_disk.iter().any(|&g| (g - f) * dir > 0) {
+                    return Err(Error::MissingFrame {
+                        frame: f,
+                        path: self.path(f),
+                    });
+                } else {
+                    break;
+                }
+            }
+            Ok(end)
+        };
+        let (lo, hi) = (extend(-1)?, extend(1)?);
+        let frames: Vec<i64> = (lo..=hi).step_by(step as usize).collect();
+        for &f in frames.iter().chain(wanted) {
+            if !has(f) || (f - lo) % step != 0 {
+                return Err(Error::MissingFrame {
+                    frame: f,
+                    path: self.path(f),
+                });
+            }
+        }
+        Ok(frames)
+    }
+}
+
 impl std::fmt::Display for SequencePattern {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
         f.write_str(&self.text)
@@ -440,5 +494,46 @@ mod tests {
                 .unwrap(),
             vec![1, 2]
         );
+    }
+
+    #[test]
+    fn a_range_reads_its_neighbours_up_to_the_sequence_ends() {
+        let dir = tempfile::tempdir().unwrap();
+        let seq = |frames: &[i64]| {
+            for e in std::fs::read_dir(dir.path()).unwrap() {
+                std::fs::remove_file(e.unwrap().path()).unwrap();
+            }
+            for f in frames {
+                std::fs::write(dir.path().join(format!("f.{f:04}.exr")), b"").unwrap();
+            }
+            SequencePattern::parse(&format!("{}/f.####.exr", dir.path().display())).unwrap()
+        };
+        let pat = seq(&(1001..=1009).collect::<Vec<_>>());
+        // inside the shot: two frames each side
+        assert_eq!(
+            pat.with_context(&[1004, 1005], 2).unwrap(),
+            (1002..=1007).collect::<Vec<_>>()
+        );
+        // at its start: only what exists
+        assert_eq!(
+            pat.with_context(&[1001, 1002], 3).unwrap(),
+            (1001..=1005).collect::<Vec<_>>()
+        );
+        // a stepped range reads every frame between its frames
+        assert_eq!(
+            pat.with_context(&[1003, 1005, 1007], 1).unwrap(),
+            (1002..=1008).collect::<Vec<_>>()
+        );
+        // a shot rendered on twos keeps its step
+        let pat = seq(&[10, 12, 14, 16, 18]);
+        assert_eq!(pat.with_context(&[14], 1).unwrap(), vec![12, 14, 16]);
+        // a hole the windows would reach is a missing frame; one beyond the reach is not
+        let pat = seq(&[1, 2, 3, 4, 5, 7, 8]);
+        let e = pat.with_context(&[4], 2).unwrap_err().to_string();
+        assert!(e.contains("frame 6") && e.contains("f.0006.exr"), "{e}");
+        assert_eq!(pat.with_context(&[2], 2).unwrap(), vec![1, 2, 3, 4]);
+        // and so is one between the wanted frames
+        let e = pat.with_context(&[5, 7], 0).unwrap_err().to_string();
+        assert!(e.contains("frame 6"), "{e}");
     }
 }

@@ -68,7 +68,7 @@ pub fn run(a: Args) -> Result<()> {
                 .to_string_lossy(),
         )?;
         let inputs: Vec<(i64, PathBuf)> = frames.iter().map(|&f| (f, input.path(f))).collect();
-        let outputs = frames.iter().map(|&f| out.path(f)).collect();
+        let outputs = frames.iter().map(|&f| Some(out.path(f))).collect();
         let reader = a.channels.reader(&inputs[0].1, Requirements::DENOISE)?;
         // pseudo-references are training targets: keep full precision
         let output_kind = Some(radn_core::exr_file::SampleKind::F32);
@@ -80,7 +80,7 @@ pub fn run(a: Args) -> Result<()> {
             output_kind,
         });
     }
-    let total: usize = jobs.iter().map(|j| j.inputs.len()).sum();
+    let total: usize = jobs.iter().map(|j| j.output_count()).sum();
     let pb = crate::progress::frames(total as u64, "pseudo-refs");
     let (mut written, mut skipped, mut base) = (0, 0, 0);
     for (s, job) in scenes.iter().zip(&jobs) {
