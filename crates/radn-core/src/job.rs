@@ -145,6 +145,15 @@ impl SequenceJob {
         self.outputs.iter().flatten().count()
     }
 
+    /// The frames the job writes, in order: position in `inputs`, output path, and whether it
+    /// is finished already (its output exists and the job does not overwrite).
+    fn output_frames(&self) -> impl Iterator<Item = (usize, &Path, bool)> {
+        self.outputs.iter().enumerate().filter_map(|(pos, o)| {
+            o.as_deref()
+                .map(|o| (pos, o, !self.overwrite && o.exists()))
+        })
+    }
+
     /// Checks before any work: no output may be an input, every output folder must be writable,
     /// and the inputs must be EXR files of one size (read from their headers).
     /// Returns the frames' size.
@@ -210,15 +219,10 @@ impl SequenceJob {
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let mut size: Option<(usize, usize)> = None;
         let total = self.output_count();
-        let mut done = 0;
-        for pos in 0..n {
-            let Some(output) = &self.outputs[pos] else {
-                continue; // a neighbour only
-            };
-            if !self.overwrite && output.exists() {
+        for (done, (pos, output, finished)) in self.output_frames().enumerate() {
+            if finished {
                 report.skipped += 1;
-                done += 1;
-                progress(done as f64, total);
+                progress((done + 1) as f64, total);
                 continue;
             }
             // decode what this window needs, once
@@ -257,8 +261,7 @@ impl SequenceJob {
             // forget frames no later window needs
             raw.retain(|&k, _| k + reach > pos);
             prepared.retain(|&k, _| k + r > pos);
-            done += 1;
-            progress(done as f64, total);
+            progress((done + 1) as f64, total);
         }
         Ok(report)
     }
@@ -282,15 +285,10 @@ impl SequenceJob {
         let band = method.band_rows().max(1);
         let halo = method.halo();
         let frames = self.output_count();
-        let mut done = 0;
-        for pos in 0..n {
-            let Some(output) = &self.outputs[pos] else {
-                continue; // a neighbour only
-            };
-            if !self.overwrite && output.exists() {
+        for (done, (pos, output, finished)) in self.output_frames().enumerate() {
+            if finished {
                 report.skipped += 1;
-                done += 1;
-                progress(done as f64, frames);
+                progress((done + 1) as f64, frames);
                 continue;
             }
             let idx = window_indices(pos, n, r);
@@ -352,8 +350,7 @@ impl SequenceJob {
             );
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
-            done += 1;
-            progress(done as f64, frames);
+            progress((done + 1) as f64, frames);
         }
         Ok(report)
     }

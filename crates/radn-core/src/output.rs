@@ -43,14 +43,7 @@ pub fn write_atomically(
     path: &Path,
     write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
 ) -> Result<()> {
-    let dir = match path.parent() {
-        Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
-        _ => PathBuf::from("."),
-    };
-    std::fs::create_dir_all(&dir).map_err(|source| Error::Write {
-        path: dir.clone(),
-        source,
-    })?;
+    let dir = create_parent(path)?;
     let tmp = output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| Error::Write {
         path: dir.clone(),
         source,
@@ -71,10 +64,9 @@ pub fn write_atomically(
     Ok(())
 }
 
-/// Creates the folder of `output` if needed and proves it writable by creating and removing a
-/// temporary file in it, so a run fails before any work instead of after it.
-pub fn ensure_writable_dir(output: &Path) -> Result<()> {
-    let dir = match output.parent() {
+/// The folder a file is written into (`.` for a bare name), created if missing.
+fn create_parent(path: &Path) -> Result<PathBuf> {
+    let dir = match path.parent() {
         Some(d) if !d.as_os_str().is_empty() => d.to_path_buf(),
         _ => PathBuf::from("."),
     };
@@ -82,6 +74,13 @@ pub fn ensure_writable_dir(output: &Path) -> Result<()> {
         path: dir.clone(),
         source,
     })?;
+    Ok(dir)
+}
+
+/// Creates the folder of `output` if needed and proves it writable by creating and removing a
+/// temporary file in it, so a run fails before any work instead of after it.
+pub fn ensure_writable_dir(output: &Path) -> Result<()> {
+    let dir = create_parent(output)?;
     tempfile::Builder::new()
         .prefix(".radn-probe-")
         .tempfile_in(&dir)

@@ -88,6 +88,23 @@ fn median(mut v: Vec<f64>) -> f64 {
     v[v.len() / 2]
 }
 
+/// A batch of random `tile × tile` windows: network inputs and the colour the kernels filter.
+fn random_windows(
+    cfg: &NetConfig,
+    batch: usize,
+    tile: usize,
+    device: &Device,
+) -> (Tensor<5>, Tensor<5>) {
+    let random = |channels: usize| {
+        Tensor::<5>::random(
+            [batch, cfg.frames, channels, tile, tile],
+            Distribution::Uniform(0.0, 1.0),
+            device,
+        )
+    };
+    (random(INPUT_CHANNELS), random(3))
+}
+
 /// Times training steps of a network on batches of random `tile × tile` windows.
 pub fn time_network(
     cfg: &NetConfig,
@@ -97,17 +114,7 @@ pub fn time_network(
     device: &Device,
 ) -> StepTiming {
     let mut d = Denoiser::new(cfg.clone(), device);
-    let t = cfg.frames;
-    let x = Tensor::<5>::random(
-        [batch, t, INPUT_CHANNELS, tile, tile],
-        Distribution::Uniform(0.0, 1.0),
-        device,
-    );
-    let v = Tensor::<5>::random(
-        [batch, t, 3, tile, tile],
-        Distribution::Uniform(0.0, 1.0),
-        device,
-    );
+    let (x, v) = random_windows(cfg, batch, tile, device);
     let y = Tensor::<4>::random(
         [batch, 3, tile, tile],
         Distribution::Uniform(0.0, 1.0),
@@ -143,17 +150,7 @@ pub fn time_inference(
 ) -> StepTiming {
     let d = Denoiser::new(cfg.clone(), device);
     d.materialize();
-    let t = cfg.frames;
-    let x = Tensor::<5>::random(
-        [batch, t, INPUT_CHANNELS, tile, tile],
-        Distribution::Uniform(0.0, 1.0),
-        device,
-    );
-    let v = Tensor::<5>::random(
-        [batch, t, 3, tile, tile],
-        Distribution::Uniform(0.0, 1.0),
-        device,
-    );
+    let (x, v) = random_windows(cfg, batch, tile, device);
     let thr = cfg.default_threshold();
     let mut times = Vec::new();
     for i in 0..repeats + 1 {
