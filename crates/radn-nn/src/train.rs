@@ -71,6 +71,12 @@ pub struct TrainConfig {
     /// kernel setting (threshold, demodulation). Its layers must match `model`'s.
     #[serde(default)]
     pub init: Option<PathBuf>,
+    /// Whether the pseudo-references (the classic denoiser's output) are drawn as targets.
+    /// They are the cleanest targets, but a network trained on them also learns that
+    /// denoiser's mistakes (it blurs thin lines and texture); `false` trains on the independent
+    /// noisier renders alone (Noise2Noise pairs), which are unbiased.
+    #[serde(default = "d_pseudo")]
+    pub pseudo_references: bool,
 }
 
 fn d_batch() -> usize {
@@ -96,6 +102,9 @@ fn d_val_tiles() -> usize {
 }
 fn d_seed() -> u64 {
     1
+}
+fn d_pseudo() -> bool {
+    true
 }
 
 impl TrainConfig {
@@ -355,7 +364,7 @@ impl Trainer {
         (0..self.config.batch)
             .map(|_| {
                 let i = rng.below(self.train.len());
-                let pair = sample_pair(&mut rng, true);
+                let pair = sample_pair(&mut rng, self.config.pseudo_references);
                 let (x0, y0) = (rng.below(tile - crop + 1), rng.below(tile - crop + 1));
                 (i, pair.input, pair.target, x0, y0)
             })

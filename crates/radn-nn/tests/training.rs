@@ -223,6 +223,33 @@ fn fine_tuning_starts_from_the_init_model_and_may_change_kernel_settings() {
 }
 
 #[test]
+fn pseudo_references_can_be_left_out_of_the_targets() {
+    let d = one_window_tile_sets();
+    let device = Device::flex().autodiff();
+    let pseudo = radn_nn::dataset::TARGET_LEVELS
+        .iter()
+        .position(|l| *l == "pseudo")
+        .unwrap();
+    let targets = |cfg: TrainConfig, out: &str| {
+        let t = Trainer::new(cfg, d.path(), &d.path().join(out), false, &device).unwrap();
+        (0..200)
+            .flat_map(|step| t.plan_step(step))
+            .map(|(_, _, target, _, _)| target)
+            .collect::<Vec<usize>>()
+    };
+    let with = targets(config(4), "with");
+    // 2 of the 5 valid pairs end at the pseudo-reference
+    let share = with.iter().filter(|&&t| t == pseudo).count() as f64 / with.len() as f64;
+    assert!((0.3..0.5).contains(&share), "pseudo share {share}");
+    let mut cfg = config(4);
+    cfg.pseudo_references = false;
+    let without = targets(cfg, "without");
+    assert!(without.iter().all(|&t| t != pseudo));
+    // the noisier renders still serve as targets at every level below the input
+    assert!(without.iter().any(|&t| t == 0) && without.iter().any(|&t| t == 1));
+}
+
+#[test]
 fn a_few_steps_lower_the_validation_loss() {
     let d = tempfile::tempdir().unwrap();
     tiles(&d.path().join("train"), 1, 3);
