@@ -71,15 +71,30 @@ fn noise_rank(level: &str) -> u8 {
     }
 }
 
-/// Every valid pair: the target strictly less noisy than the input, and never the same render
-/// (the pseudo-reference is made from the `high` render, so `high → pseudo` is excluded).
-pub fn valid_pairs(with_pseudo: bool) -> Vec<Pair> {
+/// Which (input, target) pairs training draws from.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct PairRule {
+    /// The pseudo-reference may be a target (for the `low` and `half` inputs).
+    pub pseudo: bool,
+    /// An independent render noisier than the input may be a target too (`high → half`,
+    /// `high → low`, `half → low`): Noise2Noise needs only independent, zero-mean noise in
+    /// the target, not less of it, and these pairs are the only ones that show the network
+    /// the least noisy input level.
+    pub noisier_targets: bool,
+}
+
+/// Every valid pair under `rule`: never the same render, never `high → pseudo` (the
+/// pseudo-reference is made from the `high` render), and the target less noisy than the input
+/// unless `rule.noisier_targets` allows an independent noisier render.
+pub fn valid_pairs(rule: PairRule) -> Vec<Pair> {
     let mut v = Vec::new();
     for (i, inp) in INPUT_LEVELS.iter().enumerate() {
         for (t, tgt) in TARGET_LEVELS.iter().enumerate() {
-            let independent = !(*inp == "high" && *tgt == "pseudo") && inp != tgt;
-            let available = *tgt != "pseudo" || with_pseudo;
-            if noise_rank(tgt) < noise_rank(inp) && independent && available {
+            let pseudo = *tgt == "pseudo";
+            let independent = !(*inp == "high" && pseudo) && inp != tgt;
+            let available = !pseudo || rule.pseudo;
+            let direction = noise_rank(tgt) < noise_rank(inp) || (rule.noisier_targets && !pseudo);
+            if direction && independent && available {
                 v.push(Pair {
                     input: i,
                     target: t,
@@ -91,8 +106,8 @@ pub fn valid_pairs(with_pseudo: bool) -> Vec<Pair> {
 }
 
 /// Draws one pair uniformly among the valid ones.
-pub fn sample_pair(rng: &mut SplitMix, with_pseudo: bool) -> Pair {
-    let pairs = valid_pairs(with_pseudo);
+pub fn sample_pair(rng: &mut SplitMix, rule: PairRule) -> Pair {
+    let pairs = valid_pairs(rule);
     pairs[rng.below(pairs.len())]
 }
 
@@ -163,9 +178,13 @@ mod tests {
 
     #[test]
     fn pairs_never_target_a_noisier_or_the_same_render() {
-        for with_pseudo in [false, true] {
-            let pairs = valid_pairs(with_pseudo);
-            assert_eq!(pairs.len(), if with_pseudo { 5 } else { 3 });
+        for pseudo in [false, true] {
+            let rule = PairRule {
+                pseudo,
+                noisier_targets: false,
+            };
+            let pairs = valid_pairs(rule);
+            assert_eq!(pairs.len(), if pseudo { 5 } else { 3 });
             for p in &pairs {
                 let (i, t) = (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
                 assert!(noise_rank(t) < noise_rank(i), "{i} -> {t}");
@@ -174,8 +193,29 @@ mod tests {
             }
             let mut rng = SplitMix(7);
             for _ in 0..1000 {
-                assert!(pairs.contains(&sample_pair(&mut rng, with_pseudo)));
+                assert!(pairs.contains(&sample_pair(&mut rng, rule)));
             }
+        }
+    }
+
+    #[test]
+    fn noisier_targets_add_every_other_independent_render() {
+        let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
+        for pseudo in [false, true] {
+            let pairs: Vec<_> = valid_pairs(PairRule {
+                pseudo,
+                noisier_targets: true,
+            })
+            .iter()
+            .map(name)
+            .collect();
+            // all 3 × 2 ordered pairs of distinct renders, plus low/half → pseudo
+            assert_eq!(pairs.len(), if pseudo { 8 } else { 6 }, "{pairs:?}");
+            for p in [("high", "half"), ("high", "low"), ("half", "low")] {
+                assert!(pairs.contains(&p), "{p:?} missing");
+            }
+            assert!(!pairs.contains(&("high", "pseudo")));
+            assert!(pairs.iter().all(|(i, t)| i != t));
         }
     }
 

@@ -18,7 +18,7 @@ use crate::dataset::{SplitMix, Tile, TileDataset};
 use crate::demod::Demodulation;
 use crate::error::{NnError, Result};
 use crate::model::Denoiser;
-use crate::objective::{objective, sample_pair, LossFn, LossMode, PixelLoss};
+use crate::objective::{objective, sample_pair, LossFn, LossMode, PairRule, PixelLoss};
 use crate::store;
 
 /// A training run's settings (TOML).
@@ -77,6 +77,11 @@ pub struct TrainConfig {
     /// noisier renders alone (Noise2Noise pairs), which are unbiased.
     #[serde(default = "d_pseudo")]
     pub pseudo_references: bool,
+    /// Whether an independent render noisier than the input may be the target (`high → half`
+    /// and the like). Noise2Noise needs independent noise in the target, not less of it; without
+    /// these pairs the least noisy input level is never an input in training.
+    #[serde(default)]
+    pub noisier_targets: bool,
 }
 
 fn d_batch() -> usize {
@@ -364,7 +369,13 @@ impl Trainer {
         (0..self.config.batch)
             .map(|_| {
                 let i = rng.below(self.train.len());
-                let pair = sample_pair(&mut rng, self.config.pseudo_references);
+                let pair = sample_pair(
+                    &mut rng,
+                    PairRule {
+                        pseudo: self.config.pseudo_references,
+                        noisier_targets: self.config.noisier_targets,
+                    },
+                );
                 let (x0, y0) = (rng.below(tile - crop + 1), rng.below(tile - crop + 1));
                 (i, pair.input, pair.target, x0, y0)
             })
