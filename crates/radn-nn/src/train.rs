@@ -82,6 +82,11 @@ pub struct TrainConfig {
     /// these pairs the least noisy input level is never an input in training.
     #[serde(default)]
     pub noisier_targets: bool,
+    /// Whether every validation point's weights are kept as `steps/step-N.safetensors` in the
+    /// run folder, so a model can be chosen afterwards by a measure the run does not know
+    /// (references, a studio's own shots) rather than by the run's own validation loss.
+    #[serde(default = "d_keep_steps")]
+    pub keep_steps: bool,
 }
 
 fn d_batch() -> usize {
@@ -109,6 +114,9 @@ fn d_seed() -> u64 {
     1
 }
 fn d_pseudo() -> bool {
+    true
+}
+fn d_keep_steps() -> bool {
     true
 }
 
@@ -608,7 +616,20 @@ fn drop_metrics_after(path: &Path, step: usize) -> Result<()> {
     Ok(())
 }
 
+/// Where a run keeps the weights of one validation point (`keep_steps`).
+pub fn step_model_path(out: &Path, step: usize) -> PathBuf {
+    out.join("steps").join(format!("step-{step}.safetensors"))
+}
+
 impl Trainer {
+    /// Keeps the current weights as this step's model file, if the config asks for it.
+    fn keep_step(&self) -> Result<()> {
+        if self.config.keep_steps {
+            store::save(&self.denoiser, &step_model_path(&self.out, self.state.step))?;
+        }
+        Ok(())
+    }
+
     /// Trains until `config.steps`, validating and checkpointing every `validate_every` steps
     /// and at the end.
     pub fn run(&mut self, mut on_step: impl FnMut(&Progress)) -> Result<()> {
@@ -620,6 +641,7 @@ impl Trainer {
             self.state.best_val = Some(v.loss);
             store::save(&self.denoiser, &self.out.join("best.safetensors"))?;
             self.checkpoint()?;
+            self.keep_step()?;
             on_step(&Progress {
                 step: 0,
                 loss: f64::NAN,
@@ -642,6 +664,7 @@ impl Trainer {
                     store::save(&self.denoiser, &self.out.join("best.safetensors"))?;
                 }
                 self.checkpoint()?;
+                self.keep_step()?;
                 crate::plot::training_curves(
                     &self.out.join("metrics.csv"),
                     &self.out.join("curves.png"),

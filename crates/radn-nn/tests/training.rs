@@ -30,6 +30,11 @@ fn config(steps: usize) -> TrainConfig {
 /// A digest of what the network computes on a fixed window (a function of every weight;
 /// comparing digests keeps failure messages short).
 fn weights(t: &Trainer) -> u64 {
+    digest(&t.denoiser)
+}
+
+/// [`weights`] of a denoiser that is not training (e.g. loaded from a model file).
+fn digest(denoiser: &radn_nn::model::Denoiser) -> u64 {
     use burn::tensor::{Tensor, TensorData};
     use std::hash::{Hash, Hasher};
     let device = Device::flex();
@@ -52,8 +57,7 @@ fn weights(t: &Trainer) -> u64 {
         ),
         &device,
     );
-    let out = t
-        .denoiser
+    let out = denoiser
         .predict(x, 0.004)
         .apply(v)
         .to_data()
@@ -122,6 +126,18 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
     assert_eq!(weights(&a), w0, "the checkpoint reloads exactly");
     a.run(|_| {}).unwrap();
     assert_eq!(a.state.step, 4);
+    // every validation point's weights are kept for choosing a model afterwards
+    let kept = |step| {
+        let path = radn_nn::train::step_model_path(&d.path().join("a"), step);
+        digest(&radn_nn::store::load(&path, &Device::flex()).unwrap())
+    };
+    assert_eq!(
+        kept(4),
+        weights(&a),
+        "the last kept step is the final model"
+    );
+    assert_eq!(kept(0), w0, "step 0 keeps the starting weights");
+    assert_ne!(kept(2), kept(4), "step 2 kept the final weights");
     // interrupted: 2 steps, checkpoint, a new trainer resumes and finishes
     copy_run(&d.path().join("start"), &d.path().join("b"));
     let mut b = Trainer::new(config(4), d.path(), &d.path().join("b"), true, &device).unwrap();
@@ -246,7 +262,7 @@ fn pseudo_references_can_be_left_out_of_the_targets() {
     let without = targets(cfg, "without");
     assert!(without.iter().all(|&t| t != pseudo));
     // the noisier renders still serve as targets at every level below the input
-    assert!(without.iter().any(|&t| t == 0) && without.iter().any(|&t| t == 1));
+    assert!(without.contains(&0) && without.contains(&1));
 }
 
 #[test]
