@@ -2,18 +2,9 @@
 
 mod common;
 
-use common::{assert_aovs_sum_to_beauty, radn, sample, with_aovs};
+use common::{assert_aovs_sum_to_beauty, beauty_rgb as rgb, radn, sample, with_aovs};
 use radn_core::exr_file::ExrFile;
 use radn_core::metrics::psnr;
-use radn_core::Plane;
-
-fn rgb(f: &ExrFile) -> Plane {
-    let c: Vec<Vec<f32>> = ["R", "G", "B"]
-        .iter()
-        .map(|c| f.channel_f32(&format!("ViewLayer.Combined.{c}")).unwrap())
-        .collect();
-    Plane::from_channels(f.width(), f.height(), &[&c[0], &c[1], &c[2]])
-}
 
 #[test]
 fn denoises_keeps_other_channels_and_resumes() {

@@ -11,6 +11,15 @@ pub fn sample() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../samples/cycles-sample")
 }
 
+/// The beauty (`ViewLayer.Combined` RGB) of a Cycles file, for scoring against a reference.
+pub fn beauty_rgb(f: &ExrFile) -> radn_core::Plane {
+    let c: Vec<Vec<f32>> = ["R", "G", "B"]
+        .iter()
+        .map(|c| f.channel_f32(&format!("ViewLayer.Combined.{c}")).unwrap())
+        .collect();
+    radn_core::Plane::from_channels(f.width(), f.height(), &[&c[0], &c[1], &c[2]])
+}
+
 /// Runs the `radn` binary.
 pub fn radn(args: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_radn"))
