@@ -3,13 +3,10 @@
 
 use rayon::prelude::*;
 
+use crate::banding::{Band, FrameBand};
 use crate::confidence::{confidence, ConfidenceParams, Guides};
 use crate::frame::Frame;
-use std::ops::Range;
-
-use crate::motion::{
-    compose_bands, invert_band, on_screen, round_trip_error_bands, vertical_reach, Band,
-};
+use crate::motion::{compose_bands, invert_band, on_screen, round_trip_error_bands};
 use crate::plane::Plane;
 use crate::warp::{mix_with_centre, warp_band};
 
@@ -77,136 +74,6 @@ impl AlignedWindow {
     }
 }
 
-/// Rows `y0..y0 + frame.height()` of a frame `full_height` rows tall: what banded alignment
-/// reads of each frame of a window, so memory follows the band, not the frame.
-#[derive(Clone, Copy, Debug)]
-pub struct FrameBand<'a> {
-    /// The frame's rows (every plane cropped alike).
-    pub frame: &'a Frame,
-    /// The frame row of the band's first row.
-    pub y0: usize,
-    /// The frame's height.
-    pub full_height: usize,
-}
-
-impl<'a> FrameBand<'a> {
-    /// A whole frame as a band.
-    pub fn whole(frame: &'a Frame) -> Self {
-        Self {
-            frame,
-            y0: 0,
-            full_height: frame.height(),
-        }
-    }
-
-    fn of<'p>(&self, plane: &'p Plane) -> Band<'p> {
-        Band {
-            plane,
-            y0: self.y0,
-            full_height: self.full_height,
-        }
-    }
-}
-
-/// The bands of a window: `crops[k]` holds rows `rows[k]` of window frame k (None beyond the
-/// sequence) of frames `full_height` rows tall.
-pub fn frame_bands<'a>(
-    crops: &'a [Option<Frame>],
-    rows: &[Range<usize>],
-    full_height: usize,
-) -> Vec<Option<FrameBand<'a>>> {
-    crops
-        .iter()
-        .zip(rows)
-        .map(|(f, r)| {
-            f.as_ref().map(|frame| FrameBand {
-                frame,
-                y0: r.start,
-                full_height,
-            })
-        })
-        .collect()
-}
-
-/// How many rows a frame's motion fields move a pixel at most (see
-/// [`crate::motion::vertical_reach`]): all banded alignment needs to know of a frame before
-/// reading it band by band.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct MotionReach {
-    /// Of the field to the previous frame.
-    pub prev: usize,
-    /// Of the field to the next frame.
-    pub next: usize,
-}
-
-impl MotionReach {
-    /// The reach of a frame's (or a band's) fields.
-    pub fn of(frame: &Frame) -> Self {
-        let r = |p: &Option<Plane>| p.as_ref().map_or(0, vertical_reach);
-        Self {
-            prev: r(&frame.motion_prev),
-            next: r(&frame.motion_next),
-        }
-    }
-
-    /// The larger reach of two (a frame's bands combined).
-    pub fn max(self, other: Self) -> Self {
-        Self {
-            prev: self.prev.max(other.prev),
-            next: self.next.max(other.next),
-        }
-    }
-}
-
-/// The reach of each hop of a window (the `reach` of [`window_band_rows`]) from its frames'
-/// motion reach: the hop into frame k is described by k's field towards the centre and by its
-/// neighbour's field towards k (either may be the one alignment uses). `None`: beyond the
-/// sequence.
-pub fn hop_reach(window: &[Option<MotionReach>]) -> Vec<usize> {
-    let t = window.len();
-    let r = t / 2;
-    (0..t)
-        .map(|k| {
-            let (near, here) = match k.cmp(&r) {
-                std::cmp::Ordering::Less => {
-                    (window[k + 1].map(|m| m.prev), window[k].map(|m| m.next))
-                }
-                std::cmp::Ordering::Greater => {
-                    (window[k - 1].map(|m| m.next), window[k].map(|m| m.prev))
-                }
-                std::cmp::Ordering::Equal => (None, None),
-            };
-            near.unwrap_or(0).max(here.unwrap_or(0))
-        })
-        .collect()
-}
-
-/// The frame rows each frame of a window must hold for banded alignment of the centre rows
-/// `centre` to equal whole-frame alignment. `reach[k]` is how many rows the one-frame hop
-/// between window frame k and its neighbour towards the centre can move (the larger vertical
-/// motion of the two fields that describe it, [`crate::motion::vertical_reach`]); `reach[r]`
-/// is unused. Each hop adds its reach plus two rows (the bilinear neighbour and the 3×3
-/// prefilter of the confidence guides).
-pub fn window_band_rows(
-    centre: Range<usize>,
-    reach: &[usize],
-    full_height: usize,
-) -> Vec<Range<usize>> {
-    let t = reach.len();
-    let r = t / 2;
-    let mut rows = vec![centre.clone(); t];
-    for dir in [-1i64, 1] {
-        let mut cur = centre.clone();
-        for step in 1..=r {
-            let k = (r as i64 + dir * step as i64) as usize;
-            let grow = reach[k] + 2;
-            cur = cur.start.saturating_sub(grow)..(cur.end + grow).min(full_height);
-            rows[k] = cur.clone();
-        }
-    }
-    rows
-}
-
 /// Aligns a window of frames onto its centre. `window[k]` is `None` for frames beyond the
 /// ends of the sequence: they repeat the nearest available frame with zero confidence. The
 /// window length must be odd and its centre present.
@@ -218,7 +85,7 @@ pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedW
 /// [`align_window`] for a band of the centre frame's rows: the result covers the centre band's
 /// rows and equals those rows of whole-frame alignment, except within two rows of a band edge
 /// that is not a frame edge (the confidence guides' prefilter needs the row beyond). Side
-/// frames must hold the rows [`window_band_rows`] gives.
+/// frames must hold the rows [`crate::banding::window_band_rows`] gives.
 pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> AlignedWindow {
     let t = window.len();
     assert!(t % 2 == 1, "window length must be odd");

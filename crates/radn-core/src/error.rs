@@ -109,4 +109,16 @@ pub enum Error {
         b_w: usize,
         b_h: usize,
     },
+
+    /// Two sequences to compare share no frame number.
+    #[error("no frame number is in both '{result}' and '{reference}'")]
+    NoCommonFrames { result: String, reference: String },
+
+    /// A dataset folder holds no scene of the expected layout.
+    #[error("'{path}' holds no scene with a '{level}' folder")]
+    NoScenes { path: PathBuf, level: String },
+
+    /// The output pattern names the input sequence.
+    #[error("refusing to write: the output pattern '{pattern}' is the input pattern")]
+    OutputIsInput { pattern: String },
 }

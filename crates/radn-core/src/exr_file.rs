@@ -55,9 +55,11 @@ pub struct ExrFile {
 /// The first four bytes of every OpenEXR file.
 const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
 
-/// Refuses a file that cannot be opened or does not start with the OpenEXR magic number, so a
-/// JPEG or an empty file is reported as "not an EXR" rather than as a decoder error.
-pub(crate) fn check_magic(path: &Path) -> Result<()> {
+/// Opens a file for decoding, refusing one that cannot be opened or does not start with the
+/// OpenEXR magic number (so a JPEG or an empty file is reported as "not an EXR" rather than as
+/// a decoder error); the file is handed back rewound, so each read opens it once.
+pub(crate) fn open_exr(path: &Path) -> Result<std::fs::File> {
+    use std::io::Seek;
     let mut magic = [0u8; 4];
     let mut f = std::fs::File::open(path).map_err(|source| Error::Open {
         path: path.to_path_buf(),
@@ -68,21 +70,25 @@ pub(crate) fn check_magic(path: &Path) -> Result<()> {
             path: path.to_path_buf(),
         });
     }
-    Ok(())
+    f.rewind().map_err(|source| Error::Open {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(f)
 }
 
 impl ExrFile {
     /// Reads and decodes a whole file; every failure names the file.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        check_magic(&path)?;
+        let file = open_exr(&path)?;
         let image = read()
             .no_deep_data()
             .largest_resolution_level()
             .all_channels()
             .all_layers()
             .all_attributes()
-            .from_file(&path)
+            .from_unbuffered(file)
             .map_err(|e| Error::Decode {
                 path: path.clone(),
                 detail: describe_exr_error(e),
@@ -98,15 +104,11 @@ impl ExrFile {
     /// writing back.
     pub fn read_rows(path: impl AsRef<Path>, rows: Range<usize>) -> Result<Self> {
         let path = path.as_ref().to_path_buf();
-        check_magic(&path)?;
+        let file = open_exr(&path)?;
         let decode = |e: exr::error::Error| Error::Decode {
             path: path.clone(),
             detail: describe_exr_error(e),
         };
-        let file = std::fs::File::open(&path).map_err(|source| Error::Open {
-            path: path.clone(),
-            source,
-        })?;
         let reader = exr::block::read(std::io::BufReader::new(file), false).map_err(decode)?;
         let headers = reader.headers().to_vec();
         let first = headers.first().ok_or_else(|| Error::Decode {
@@ -223,9 +225,9 @@ impl ExrFile {
     /// whole sequence can be checked before hours of work start; failures name the file.
     pub fn read_size(path: impl AsRef<Path>) -> Result<(usize, usize)> {
         let path = path.as_ref().to_path_buf();
-        check_magic(&path)?;
+        let file = open_exr(&path)?;
         let meta =
-            exr::meta::MetaData::read_from_file(&path, false).map_err(|e| Error::Decode {
+            exr::meta::MetaData::read_from_unbuffered(file, false).map_err(|e| Error::Decode {
                 path: path.clone(),
                 detail: describe_exr_error(e),
             })?;
@@ -234,6 +236,32 @@ impl ExrFile {
             detail: "the file has no parts".into(),
         })?;
         Ok((h.layer_size.width(), h.layer_size.height()))
+    }
+
+    /// The full channel names of a file (`layer.channel` for named parts), sorted, from its
+    /// headers alone: what choosing a channel preset needs, without decoding any pixel.
+    pub fn read_channel_names(path: impl AsRef<Path>) -> Result<Vec<String>> {
+        let path = path.as_ref().to_path_buf();
+        let file = open_exr(&path)?;
+        let meta =
+            exr::meta::MetaData::read_from_unbuffered(file, false).map_err(|e| Error::Decode {
+                path: path.clone(),
+                detail: describe_exr_error(e),
+            })?;
+        let mut names: Vec<String> = meta
+            .headers
+            .iter()
+            .flat_map(|h| {
+                let prefix = h.own_attributes.layer_name.as_ref().map(|t| t.to_string());
+                h.channels.list.iter().map(move |c| match &prefix {
+                    Some(p) => format!("{p}.{}", c.name),
+                    None => c.name.to_string(),
+                })
+            })
+            .collect();
+        names.sort();
+        names.dedup();
+        Ok(names)
     }
 
     /// Builds a new single-part file from named planes of one size.

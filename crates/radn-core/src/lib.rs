@@ -1,27 +1,38 @@
-//! radn-core: everything in radn that has no network in it.
+//! radn-core: everything in radn that has no network in it, in the order of the data path.
 //!
-//! EXR files in ([`exr_file`], [`frame`], [`mapping`], [`sequence`]), inputs checked and
-//! repaired ([`hygiene`]), 5-frame windows aligned onto their centre frame with per-pixel
-//! confidence ([`motion`], [`warp`], [`confidence`], [`align`]), metrics ([`metrics`]) and
-//! safe outputs ([`output`]).
+//! - EXR files in and out: [`exr_file`], [`frame`], [`mapping`], [`sequence`], inputs checked
+//!   and repaired ([`hygiene`]), safe outputs ([`output`]: atomic writes, PNG), denoised
+//!   frames written into copies of their inputs ([`denoised_output`]).
+//! - Windows: read ([`window`]) and aligned onto their centre frame with per-pixel confidence
+//!   ([`motion`], [`warp`], [`confidence`], [`align`]), whole or band by band ([`banding`]).
+//! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
+//!   ([`classic`]), whole sequences ([`job`]) and runs of several passes ([`passes`]).
+//! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]) and the HTML report
+//!   ([`report`]).
 
 pub mod align;
-pub mod band_write;
+pub mod banding;
+pub mod classic;
 pub mod confidence;
+pub mod denoised_output;
+pub mod denoiser;
 pub mod error;
+pub mod evaluation;
 pub mod exr_file;
 pub mod frame;
 pub mod hygiene;
 pub mod image_ops;
+pub mod job;
 pub mod mapping;
 pub mod metrics;
 pub mod motion;
 pub mod output;
+pub mod passes;
 pub mod plane;
+pub mod report;
 pub mod sequence;
 pub mod warp;
+pub mod window;
 
 pub use error::{Error, Result};
 pub use plane::Plane;
-pub mod classic;
-pub mod job;

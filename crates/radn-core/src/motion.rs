@@ -3,71 +3,8 @@
 
 use rayon::prelude::*;
 
+use crate::banding::Band;
 use crate::plane::Plane;
-
-/// Rows `y0..y0 + plane.height()` of a frame `full_height` rows tall: a horizontal band of a
-/// frame's plane, sampled in the frame's coordinates. Banded alignment reads only the rows a
-/// band of output needs, yet samples (and clamps at the frame's edges) exactly as a whole frame.
-#[derive(Clone, Copy, Debug)]
-pub struct Band<'a> {
-    /// The band's rows.
-    pub plane: &'a Plane,
-    /// The frame row of the band's first row.
-    pub y0: usize,
-    /// The frame's height.
-    pub full_height: usize,
-}
-
-impl<'a> Band<'a> {
-    /// A whole plane as a band.
-    pub fn whole(plane: &'a Plane) -> Self {
-        Self {
-            plane,
-            y0: 0,
-            full_height: plane.height(),
-        }
-    }
-
-    /// Bilinear lookup of channel `c` at frame position (x, y), edges of the *frame* repeated.
-    /// The position, after clamping to the frame, must lie within the band (its rows and the
-    /// next one), which banded alignment guarantees by reading rows as far as motion reaches.
-    #[inline]
-    pub fn bilinear(&self, c: usize, x: f32, y: f32) -> f32 {
-        let p = self.plane;
-        let w = p.width();
-        let h = self.full_height;
-        let xf = x.clamp(0.0, (w - 1) as f32);
-        let yf = y.clamp(0.0, (h - 1) as f32);
-        let x0 = xf.floor() as usize;
-        let y0 = yf.floor() as usize;
-        let x1 = (x0 + 1).min(w - 1);
-        let y1 = (y0 + 1).min(h - 1);
-        let fx = xf - x0 as f32;
-        let fy = yf - y0 as f32;
-        let last = p.height() - 1;
-        let (r0, r1) = (
-            y0.saturating_sub(self.y0).min(last),
-            y1.saturating_sub(self.y0).min(last),
-        );
-        // the row below is read only with a non-zero weight
-        debug_assert!(
-            y0 >= self.y0 && y0 - self.y0 <= last && (fy == 0.0 || y1 - self.y0 <= last),
-            "band rows {}..{} do not hold row {y0}",
-            self.y0,
-            self.y0 + p.height()
-        );
-        let ch = p.channel(c);
-        let a = ch[r0 * w + x0] * (1.0 - fx) + ch[r0 * w + x1] * fx;
-        let b = ch[r1 * w + x0] * (1.0 - fx) + ch[r1 * w + x1] * fx;
-        a * (1.0 - fy) + b * fy
-    }
-
-    /// The value of channel `c` at frame pixel (x, y), which must lie within the band.
-    #[inline]
-    pub fn get(&self, x: usize, y: usize, c: usize) -> f32 {
-        self.plane.get(x, y - self.y0, c)
-    }
-}
 
 /// Bilinear lookup of channel `c` at continuous position (x, y), pixel centres at integers;
 /// positions outside the plane repeat the edge.
@@ -139,17 +76,6 @@ pub fn invert_band(f: Band, y0: usize, height: usize, iterations: usize) -> Plan
             }
         });
     out
-}
-
-/// The largest vertical displacement of a field, in whole pixels rounded up: how many rows
-/// beyond a band one hop along it can reach.
-pub fn vertical_reach(field: &Plane) -> usize {
-    field
-        .channel(1)
-        .iter()
-        .filter(|v| v.is_finite())
-        .fold(0.0f32, |m, v| m.max(v.abs()))
-        .ceil() as usize
 }
 
 /// Forward–backward consistency error in pixels: how far `there` (this → other) followed by

@@ -1,4 +1,6 @@
-//! Safety checks for outputs: never overwrite an input, fail early on unwritable folders.
+//! Writing outputs safely: never over an input, folders proven writable before any work, and
+//! every file (EXR, model, checkpoint, report, PNG) written through a temporary file renamed
+//! into place, so a failed or killed write leaves nothing under the output's name.
 
 use std::path::{Path, PathBuf};
 
@@ -36,32 +38,108 @@ pub fn output_tempfile(
     b.tempfile_in(dir)
 }
 
-/// Writes `path` through a temporary file in its folder that is renamed into place only once
-/// `write` succeeded and everything is flushed, so a failed or killed write never leaves a
-/// partial file under the output's name (nor a temporary one: it is removed on failure).
-pub fn write_atomically(
+/// The temporary file's suffix for an output: its extension and `.tmp` (`.exr.tmp` for an EXR),
+/// so a leftover one is recognisable as radn's and as what it was to become.
+fn temp_suffix(path: &Path) -> String {
+    match path.extension() {
+        Some(e) => format!(".{}.tmp", e.to_string_lossy()),
+        None => ".tmp".into(),
+    }
+}
+
+/// Writes `path` through a temporary file in its folder (`.radn-XXXXXX.EXT.tmp`), which
+/// `write` fills — through the open file, or by its path for writers that take one (model and
+/// checkpoint stores) — and which is renamed into place only once `write` succeeded. A failed
+/// write removes it, so nothing partial is left under the output's name nor beside it.
+pub fn write_atomically_with<E: From<Error>>(
     path: &Path,
-    write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
-) -> Result<()> {
+    write: impl FnOnce(&std::fs::File, &Path) -> std::result::Result<(), E>,
+) -> std::result::Result<(), E> {
     let dir = create_parent(path)?;
-    let tmp = output_tempfile(&dir, ".radn-", ".exr.tmp").map_err(|source| Error::Write {
-        path: dir.clone(),
-        source,
-    })?;
-    {
-        let mut writer = std::io::BufWriter::new(tmp.as_file());
-        write(&mut writer)?;
-        use std::io::Write;
-        writer.flush().map_err(|source| Error::Write {
-            path: path.to_path_buf(),
+    let tmp =
+        output_tempfile(&dir, ".radn-", &temp_suffix(path)).map_err(|source| Error::Write {
+            path: dir.clone(),
             source,
         })?;
-    }
+    write(tmp.as_file(), tmp.path())?;
     tmp.persist(path).map_err(|e| Error::Write {
         path: path.to_path_buf(),
         source: e.error,
     })?;
     Ok(())
+}
+
+/// [`write_atomically_with`] through a buffered writer, flushed before the rename.
+pub fn write_atomically(
+    path: &Path,
+    write: impl FnOnce(&mut std::io::BufWriter<&std::fs::File>) -> Result<()>,
+) -> Result<()> {
+    write_atomically_with(path, |file, _| {
+        let mut writer = std::io::BufWriter::new(file);
+        write(&mut writer)?;
+        use std::io::Write;
+        writer.flush().map_err(|source| Error::Write {
+            path: path.to_path_buf(),
+            source,
+        })
+    })
+}
+
+/// Writes `bytes` to `path` atomically (reports, manifests, logs).
+pub fn write_bytes_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
+    write_atomically(path, |w| {
+        use std::io::Write;
+        w.write_all(bytes).map_err(|source| Error::Write {
+            path: path.to_path_buf(),
+            source,
+        })
+    })
+}
+
+/// Pixel layout of an 8-bit PNG.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum PngColor {
+    /// One grey byte per pixel.
+    Grey,
+    /// Three bytes (R, G, B) per pixel.
+    Rgb,
+}
+
+/// Encodes 8-bit pixels (rows top to bottom) as PNG bytes.
+pub fn encode_png(pixels: &[u8], width: usize, height: usize, color: PngColor) -> Vec<u8> {
+    let per_pixel = match color {
+        PngColor::Grey => 1,
+        PngColor::Rgb => 3,
+    };
+    assert_eq!(
+        pixels.len(),
+        width * height * per_pixel,
+        "PNG pixels and size disagree"
+    );
+    let mut buf = Vec::new();
+    {
+        let mut enc = png::Encoder::new(&mut buf, width as u32, height as u32);
+        enc.set_color(match color {
+            PngColor::Grey => png::ColorType::Grayscale,
+            PngColor::Rgb => png::ColorType::Rgb,
+        });
+        enc.set_depth(png::BitDepth::Eight);
+        let mut w = enc.write_header().expect("in-memory PNG header");
+        w.write_image_data(pixels)
+            .expect("in-memory PNG data of the checked size");
+    }
+    buf
+}
+
+/// Writes 8-bit pixels as a PNG file, atomically (heat maps, crops, training curves).
+pub fn write_png(
+    path: &Path,
+    pixels: &[u8],
+    width: usize,
+    height: usize,
+    color: PngColor,
+) -> Result<()> {
+    write_bytes_atomically(path, &encode_png(pixels, width, height, color))
 }
 
 /// The folder a file is written into (`.` for a bare name), created if missing.
@@ -144,5 +222,45 @@ mod tests {
             .unwrap_err()
             .to_string();
         assert!(e.contains("file"), "{e}");
+    }
+
+    #[test]
+    fn atomic_writes_leave_the_file_whole_or_untouched_and_no_temporary_behind() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("sub/report.json");
+        write_bytes_atomically(&p, b"{}").unwrap();
+        assert_eq!(std::fs::read(&p).unwrap(), b"{}");
+        // a writer that fails keeps the earlier file and removes its temporary file
+        let failed: Result<()> = write_atomically_with(&p, |_, tmp| {
+            assert!(
+                tmp.to_string_lossy().ends_with(".json.tmp"),
+                "{}",
+                tmp.display()
+            );
+            std::fs::write(tmp, b"partial").unwrap();
+            Err(Error::Unsupported {
+                path: p.clone(),
+                detail: "stopped".into(),
+            })
+        });
+        assert!(failed.is_err());
+        assert_eq!(std::fs::read(&p).unwrap(), b"{}");
+        let names: Vec<_> = std::fs::read_dir(p.parent().unwrap()).unwrap().collect();
+        assert_eq!(names.len(), 1, "only the report remains");
+    }
+
+    #[test]
+    fn png_files_decode_to_the_pixels_written() {
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("x.png");
+        let px: Vec<u8> = (0..2 * 3 * 3).map(|i| (i * 13) as u8).collect();
+        write_png(&p, &px, 2, 3, PngColor::Rgb).unwrap();
+        let mut r = png::Decoder::new(std::io::BufReader::new(std::fs::File::open(&p).unwrap()))
+            .read_info()
+            .unwrap();
+        let mut buf = vec![0; r.output_buffer_size().unwrap()];
+        let info = r.next_frame(&mut buf).unwrap();
+        assert_eq!((info.width, info.height), (2, 3));
+        assert_eq!(&buf[..info.buffer_size()], &px[..]);
     }
 }

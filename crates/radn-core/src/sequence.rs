@@ -405,6 +405,44 @@ impl std::str::FromStr for FrameRange {
     }
 }
 
+/// The frames of a sequence given as a pattern or a folder, optionally only those of a frame
+/// range (`first-last[xstep]`): (frame number, path) in frame order.
+pub fn sequence_files(spec: &str, frames: Option<&str>) -> Result<Vec<(i64, PathBuf)>> {
+    let pattern = SequencePattern::parse_or_folder(spec)?;
+    let range = frames.map(FrameRange::parse).transpose()?;
+    Ok(pattern
+        .frames(range.as_ref())?
+        .into_iter()
+        .map(|f| (f, pattern.path(f)))
+        .collect())
+}
+
+/// The scene folders of a rendered dataset (the data generator's layout
+/// `<scene>/<level>/frame_####.exr`): every folder under `data` with a `level` folder, in
+/// name order, or `data` itself when it is one scene.
+pub fn scene_folders(data: &Path, level: &str) -> Result<Vec<PathBuf>> {
+    if data.join(level).is_dir() {
+        return Ok(vec![data.to_path_buf()]);
+    }
+    let mut v: Vec<PathBuf> = std::fs::read_dir(data)
+        .map_err(|source| Error::Open {
+            path: data.to_path_buf(),
+            source,
+        })?
+        .flatten()
+        .map(|e| e.path())
+        .filter(|p| p.join(level).is_dir())
+        .collect();
+    v.sort();
+    if v.is_empty() {
+        return Err(Error::NoScenes {
+            path: data.to_path_buf(),
+            level: level.into(),
+        });
+    }
+    Ok(v)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -2,7 +2,7 @@
 
 use rayon::prelude::*;
 
-use crate::motion::Band;
+use crate::banding::Band;
 use crate::plane::Plane;
 
 /// Warps `src` onto the frame `flow` is defined on: `out(x) = src(x + flow(x))`, bilinear,

@@ -2,10 +2,8 @@
 //! background. Warped side frames must match the centre frame within 1e-3 wherever the surface
 //! is visible in both, and confidence must be ~0 exactly where it is not.
 
-use radn_core::align::{
-    align_bands, align_window, frame_bands, hop_reach, window_band_rows, AlignParams,
-    AlignedWindow, MotionReach,
-};
+use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
+use radn_core::banding::{frame_bands, hop_reach, window_band_rows, MotionReach};
 use radn_core::frame::Frame;
 use radn_core::Plane;
 

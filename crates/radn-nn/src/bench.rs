@@ -1,5 +1,6 @@
-//! Training-step throughput of a network and of a bare 3×3 convolution stack of the same width
-//! and depth, measured the same way: how much the RA blocks and kernel application cost.
+//! Throughput of a network (training steps, and inference per tile) and of a bare 3×3
+//! convolution stack of the same width and depth, measured the same way: how much the RA blocks
+//! and kernel application cost. FLOP counts come from the networks' own layers.
 
 use std::time::Instant;
 
@@ -9,10 +10,10 @@ use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Distribution, Tensor};
 
-use crate::config::{Arch, Backbone, NetConfig, INPUT_CHANNELS};
-use crate::layers::conv3;
-use crate::loss::smape;
+use crate::model::config::{NetConfig, INPUT_CHANNELS};
+use crate::model::layers::{conv3, conv_flops};
 use crate::model::Denoiser;
+use crate::train::loss::smape;
 
 /// One measurement.
 #[derive(Clone, Debug)]
@@ -27,59 +28,6 @@ impl StepTiming {
     /// Achieved GFLOP/s, counting a training step as 3× the forward FLOPs.
     pub fn gflops(&self) -> f64 {
         3.0 * self.forward_flops / (self.ms * 1e-3) / 1e9
-    }
-}
-
-/// Forward FLOPs of a network configuration on a `frames`-frame window of `h × w` pixels.
-pub fn forward_flops(cfg: &NetConfig, h: usize, w: usize) -> f64 {
-    let px = (h * w) as f64;
-    let conv = |cin: usize, cout: usize| 2.0 * (cin * cout * 9) as f64 * px;
-    let k2 = (cfg.kernel_size * cfg.kernel_size) as f64;
-    let t = cfg.frames as f64;
-    match &cfg.backbone {
-        Backbone::Resnet {
-            blocks,
-            width,
-            ra_after,
-            skips_from,
-        } => {
-            let wd = *width;
-            let per_frame_backbone = conv(INPUT_CHANNELS, wd) + *blocks as f64 * 2.0 * conv(wd, wd);
-            // each RA block runs its predictor once per frame, on [h_i, average] (2·width channels)
-            let hidden = (wd / 2).max(8);
-            let ra = ra_after.len() as f64 * (conv(2 * wd, hidden) + conv(hidden, 1));
-            let head_in = wd * (1 + skips_from.len());
-            match cfg.arch {
-                Arch::Ra => {
-                    t * (per_frame_backbone + ra + conv(head_in, k2 as usize))
-                        + 2.0 * t * k2 * 3.0 * px
-                }
-                Arch::Spatial => per_frame_backbone + conv(wd, k2 as usize) + 2.0 * k2 * 3.0 * px,
-                Arch::Tkpcn => {
-                    t * (per_frame_backbone + conv(wd, k2 as usize))
-                        + conv(cfg.frames * wd, wd)
-                        + conv(wd, wd)
-                        + conv(wd, cfg.frames * k2 as usize)
-                        + 2.0 * 2.0 * t * k2 * 3.0 * px
-                }
-            }
-        }
-        Backbone::Unet { widths } => {
-            // encoder and decoder double convs at shrinking resolution (approximate)
-            let mut f = 0.0;
-            let mut cin = INPUT_CHANNELS;
-            for (s, &wd) in widths.iter().enumerate() {
-                let scale = 1.0 / (4f64.powi(s as i32));
-                f += scale * (conv(cin, wd) + conv(wd, wd));
-                if s > 0 {
-                    f += (scale * 4.0)
-                        * (conv(wd + widths[s - 1], widths[s - 1])
-                            + conv(widths[s - 1], widths[s - 1]));
-                }
-                cin = wd;
-            }
-            t * (f + conv(widths[0], k2 as usize)) + 2.0 * t * k2 * 3.0 * px
-        }
     }
 }
 
@@ -134,7 +82,7 @@ pub fn time_network(
     }
     StepTiming {
         ms: median(times),
-        forward_flops: batch as f64 * forward_flops(cfg, tile, tile),
+        forward_flops: batch as f64 * d.forward_flops(tile, tile, 3),
     }
 }
 
@@ -163,7 +111,7 @@ pub fn time_inference(
     }
     StepTiming {
         ms: median(times),
-        forward_flops: batch as f64 * forward_flops(cfg, tile, tile),
+        forward_flops: batch as f64 * d.forward_flops(tile, tile, 3),
     }
 }
 
@@ -206,7 +154,11 @@ pub fn time_conv_stack(
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
     }
-    let flops = frames as f64 * convs as f64 * 2.0 * (width * width * 9 * tile * tile) as f64;
+    let flops = frames as f64
+        * s.convs
+            .iter()
+            .map(|c| conv_flops(c, tile * tile))
+            .sum::<f64>();
     StepTiming {
         ms: median(times),
         forward_flops: flops,

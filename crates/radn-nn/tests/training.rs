@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
-use radn_nn::dataset::{prepare, PrepareOptions, TileDataset};
-use radn_nn::train::{TrainConfig, Trainer};
+use radn_nn::train::dataset::{prepare, PrepareOptions, TileDataset};
+use radn_nn::train::trainer::{TrainConfig, Trainer};
 
 fn sample() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../samples/cycles-sample")
@@ -38,13 +38,13 @@ fn digest(denoiser: &radn_nn::model::Denoiser) -> u64 {
     use burn::tensor::{Tensor, TensorData};
     use std::hash::{Hash, Hasher};
     let device = Device::flex();
-    let n = 5 * radn_nn::config::INPUT_CHANNELS * 16 * 16;
+    let n = 5 * radn_nn::model::config::INPUT_CHANNELS * 16 * 16;
     let x = Tensor::<5>::from_data(
         TensorData::new(
             (0..n)
                 .map(|i| ((i * 7919) % 101) as f32 / 101.0)
                 .collect::<Vec<f32>>(),
-            [1, 5, radn_nn::config::INPUT_CHANNELS, 16, 16],
+            [1, 5, radn_nn::model::config::INPUT_CHANNELS, 16, 16],
         ),
         &device,
     );
@@ -128,8 +128,8 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
     assert_eq!(a.state.step, 4);
     // every validation point's weights are kept for choosing a model afterwards
     let kept = |step| {
-        let path = radn_nn::train::step_model_path(&d.path().join("a"), step);
-        digest(&radn_nn::store::load(&path, &Device::flex()).unwrap())
+        let path = radn_nn::train::trainer::step_model_path(&d.path().join("a"), step);
+        digest(&radn_nn::model::store::load(&path, &Device::flex()).unwrap())
     };
     assert_eq!(
         kept(4),
@@ -220,7 +220,8 @@ fn fine_tuning_starts_from_the_init_model_and_may_change_kernel_settings() {
     assert_eq!(t.denoiser.config.demodulate, Some(0.25));
     t.run(|_| {}).unwrap();
     assert_ne!(weights(&t), w0, "fine-tuning changed nothing");
-    let saved = radn_nn::store::read_config(&d.path().join("tuned/model.safetensors")).unwrap();
+    let saved =
+        radn_nn::model::store::read_config(&d.path().join("tuned/model.safetensors")).unwrap();
     assert_eq!(
         saved.demodulate,
         Some(0.25),
@@ -242,7 +243,7 @@ fn fine_tuning_starts_from_the_init_model_and_may_change_kernel_settings() {
 fn pseudo_references_can_be_left_out_of_the_targets() {
     let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
-    let pseudo = radn_nn::dataset::TARGET_LEVELS
+    let pseudo = radn_nn::train::dataset::TARGET_LEVELS
         .iter()
         .position(|l| *l == "pseudo")
         .unwrap();
@@ -289,7 +290,7 @@ fn a_few_steps_lower_the_validation_loss() {
 fn the_perceptual_loss_trains_with_user_supplied_vgg_weights() {
     let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
-    radn_nn::vgg::Vgg19::new(&Device::flex())
+    radn_nn::train::vgg::Vgg19::new(&Device::flex())
         .save_torchvision(&d.path().join("vgg19.safetensors"))
         .unwrap();
     let text = "model = \"small\"\ntrain = \"train\"\nval = \"val\"\nbatch = 1\nsteps = 2\nvalidate_every = 2\nval_tiles = 1\nloss = \"vgg\"\n";

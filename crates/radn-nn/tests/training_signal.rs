@@ -7,9 +7,9 @@ use burn::tensor::{Device, Tensor, TensorData};
 use radn_core::align::{align_window, AlignParams};
 use radn_core::frame::{Frame, FrameReader, Requirements};
 use radn_core::mapping::ChannelMapping;
-use radn_nn::config::INPUT_CHANNELS;
-use radn_nn::input::{color_values, features};
-use radn_nn::loss::smape;
+use radn_nn::infer::input::{color_values, features};
+use radn_nn::model::config::INPUT_CHANNELS;
+use radn_nn::train::loss::smape;
 use radn_nn::{Denoiser, NetConfig};
 
 fn sample(level: &str, f: i64) -> PathBuf {

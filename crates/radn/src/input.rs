@@ -1,5 +1,5 @@
 //! Options shared by every command that reads frames: preset, mapping file, view layer,
-//! NaN/Inf policy.
+//! NaN/Inf policy, turned into the frame reader they describe.
 
 use std::path::PathBuf;
 
@@ -68,18 +68,4 @@ impl ChannelArgs {
         };
         Ok(r)
     }
-}
-
-/// A sequence given as a pattern (`####`, `%04d`, `$F4`) or a folder of numbered EXRs, with
-/// an optional range: the frame numbers and their files.
-pub fn sequence_files(spec: &str, frames: Option<&str>) -> Result<Vec<(i64, PathBuf)>> {
-    let pattern = radn_core::sequence::SequencePattern::parse_or_folder(spec)?;
-    let range = frames
-        .map(radn_core::sequence::FrameRange::parse)
-        .transpose()?;
-    Ok(pattern
-        .frames(range.as_ref())?
-        .into_iter()
-        .map(|f| (f, pattern.path(f)))
-        .collect())
 }

@@ -16,8 +16,10 @@ pub const DEFAULT_MODEL_NAME: &str = "<built-in default model>";
 /// Loads `path`, or the compiled-in default model when none is given.
 pub fn load(path: Option<&Path>, device: &Device) -> Result<Denoiser> {
     Ok(match path {
-        Some(p) => radn_nn::store::load(p, device)?,
-        None => radn_nn::store::load_bytes(DEFAULT_MODEL, Path::new(DEFAULT_MODEL_NAME), device)?,
+        Some(p) => radn_nn::model::store::load(p, device)?,
+        None => {
+            radn_nn::model::store::load_bytes(DEFAULT_MODEL, Path::new(DEFAULT_MODEL_NAME), device)?
+        }
     })
 }
 

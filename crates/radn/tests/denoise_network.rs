@@ -20,7 +20,7 @@ fn model_with(dir: &Path, demodulate: Option<f32>) -> PathBuf {
     let mut config = NetConfig::preset("small").unwrap();
     config.demodulate = demodulate;
     let d = Denoiser::new(config, &Device::flex());
-    radn_nn::store::save(&d, &p).unwrap();
+    radn_nn::model::store::save(&d, &p).unwrap();
     p
 }
 

@@ -285,7 +285,7 @@ impl Default for ClassicDenoiser {
     }
 }
 
-impl crate::job::WindowDenoiser for ClassicDenoiser {
+impl crate::denoiser::WindowDenoiser for ClassicDenoiser {
     fn radius(&self) -> usize {
         self.radius
     }
@@ -304,9 +304,9 @@ impl crate::job::WindowDenoiser for ClassicDenoiser {
         }
     }
 
-    fn denoise(&self, window: &[Option<&Frame>]) -> crate::Result<crate::job::Denoised> {
+    fn denoise(&self, window: &[Option<&Frame>]) -> crate::Result<crate::denoiser::Denoised> {
         let r = denoise_window(window, &self.params);
-        Ok(crate::job::Denoised {
+        Ok(crate::denoiser::Denoised {
             color: r.color,
             alpha: r.alpha,
             aovs: r.aovs,

@@ -1,14 +1,17 @@
 //! `radn bench`: throughput of reading and aligning 5-frame windows on this machine.
 
+use std::path::PathBuf;
 use std::time::Instant;
 
 use anyhow::{anyhow, Result};
-use radn_core::align::{align_window, AlignParams};
+use radn_core::align::AlignParams;
 use radn_core::classic::pipeline::{denoise_window, ClassicParams};
 use radn_core::classic::refine::{refine_motion, RefineParams};
-use radn_core::frame::{Frame, Requirements};
+use radn_core::frame::Requirements;
+use radn_core::sequence::sequence_files;
+use radn_core::window::WindowReader;
 
-use crate::input::{sequence_files, ChannelArgs};
+use crate::input::ChannelArgs;
 
 /// Arguments of `radn bench`.
 #[derive(clap::Args)]
@@ -66,24 +69,27 @@ pub fn run(a: Args) -> Result<()> {
     let mut align_times = Vec::new();
     let mut refine_times = Vec::new();
     let mut classic_times = Vec::new();
-    let mut frames: Vec<Frame> = Vec::new();
+    let paths: Vec<PathBuf> = files[..5].iter().map(|(_, p)| p.clone()).collect();
+    let mut size = (0, 0);
     for _ in 0..a.repeat.max(1) {
+        // a new reader each time, so every repetition decodes the five frames
+        let mut windows = WindowReader::new(&reader, &paths, 2);
         let t = Instant::now();
-        frames = files[..5]
-            .iter()
-            .map(|(_, p)| reader.read(p).map(|r| r.0))
-            .collect::<Result<_, _>>()?;
+        windows.load(2, 2)?;
         read_times.push(t.elapsed().as_secs_f64());
-        let window: Vec<Option<&Frame>> = frames.iter().map(Some).collect();
         let t = Instant::now();
-        let w = align_window(&window, &AlignParams::default());
+        let w = windows.aligned(2, &AlignParams::default())?;
         align_times.push(t.elapsed().as_secs_f64());
+        size = (w.centre().color.width(), w.centre().color.height());
         std::hint::black_box(w);
         if a.classic {
             // one frame's refinement: its motion towards both neighbours
-            let c = &frames[2];
+            let c = windows.frame(2);
             let t = Instant::now();
-            for (other, m) in [(&frames[1], &c.motion_prev), (&frames[3], &c.motion_next)] {
+            for (other, m) in [
+                (windows.frame(1), &c.motion_prev),
+                (windows.frame(3), &c.motion_next),
+            ] {
                 if let Some(m) = m {
                     std::hint::black_box(refine_motion(
                         &c.color,
@@ -99,11 +105,11 @@ pub fn run(a: Args) -> Result<()> {
                 ..ClassicParams::default()
             };
             let t = Instant::now();
-            std::hint::black_box(denoise_window(&window, &p));
+            std::hint::black_box(denoise_window(&windows.window(2), &p));
             classic_times.push(t.elapsed().as_secs_f64());
         }
     }
-    let mp = (frames[0].width() * frames[0].height()) as f64 / 1e6;
+    let mp = (size.0 * size.1) as f64 / 1e6;
     let med = |v: &mut Vec<f64>| {
         v.sort_by(f64::total_cmp);
         v[v.len() / 2]
@@ -111,8 +117,8 @@ pub fn run(a: Args) -> Result<()> {
     let (r, al) = (med(&mut read_times), med(&mut align_times));
     println!(
         "frame size {}x{} ({mp:.3} MP), {} threads, median of {}",
-        frames[0].width(),
-        frames[0].height(),
+        size.0,
+        size.1,
         rayon::current_num_threads(),
         a.repeat
     );
@@ -169,7 +175,7 @@ fn inference(preset: &str, tile: usize, batch: usize, repeats: usize) -> Result<
 
 fn network(preset: &str, tile: usize, batch: usize, steps: usize) -> Result<()> {
     use radn_nn::bench::{time_conv_stack, time_network};
-    use radn_nn::config::Backbone;
+    use radn_nn::model::config::Backbone;
     let cfg = net_config(preset)?;
     let device = radn_nn::burn::tensor::Device::flex().autodiff();
     let params = radn_nn::Denoiser::new(cfg.clone(), &device).num_params();

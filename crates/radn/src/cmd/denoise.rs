@@ -2,13 +2,14 @@
 
 use std::path::PathBuf;
 
-use anyhow::{anyhow, Context, Result};
+use anyhow::{anyhow, Result};
 use radn_core::classic::pipeline::{ClassicDenoiser, ClassicParams};
+use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
-use radn_core::job::SequenceJob;
-use radn_core::sequence::SequencePattern;
+use radn_core::passes::DenoiseRun;
+use radn_core::sequence::{sequence_files, SequencePattern};
 
-use crate::input::{sequence_files, ChannelArgs};
+use crate::input::ChannelArgs;
 
 /// Denoising methods.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -141,130 +142,44 @@ impl ClassicArgs {
 /// Denoises the sequence.
 pub fn run(a: Args) -> Result<()> {
     let wanted = sequence_files(&a.input, a.frames.as_deref())?;
-    let pattern = SequencePattern::parse_or_folder(&a.input)?;
-    let out_pattern = SequencePattern::parse(&a.output)?;
-    if out_pattern.as_str() == a.input {
-        return Err(anyhow!(
-            "refusing to write: the output pattern '{}' is the input pattern",
-            a.output
-        ));
-    }
     let mut reader = a.channels.reader(&wanted[0].1, Requirements::DENOISE)?;
     reader.aovs = a.aovs.clone();
-    let method: Box<dyn radn_core::job::WindowDenoiser> = match a.method {
+    let method: Box<dyn WindowDenoiser> = match a.method {
         Method::Classic => Box::new(a.classic.denoiser()),
         Method::Network => Box::new(network_from(&a)?),
     };
-    let passes = if a.method == Method::Network {
-        a.passes.max(1)
-    } else {
-        1
-    };
-    // the frames every window of every pass reads: a frame range is denoised exactly as the
-    // same frames of a run over the whole sequence, neighbours beyond the range included
-    let r = method.radius();
-    let context = (passes - 1) * r + r + usize::from(method.prepare_needs_neighbours());
-    let numbers: Vec<i64> = wanted.iter().map(|(f, _)| *f).collect();
-    let all = pattern.with_context(&numbers, context)?;
-    let inputs: Vec<(i64, PathBuf)> = all.iter().map(|&f| (f, pattern.path(f))).collect();
-    let outputs: Vec<Option<PathBuf>> = all
-        .iter()
-        .map(|f| numbers.contains(f).then(|| out_pattern.path(*f)))
-        .collect();
-    // earlier passes write to a scratch folder beside the output; the last writes the output
-    let scratch = if passes > 1 {
-        let dir = out_pattern
-            .path(numbers[0])
-            .parent()
-            .map(PathBuf::from)
-            .unwrap_or_default();
-        std::fs::create_dir_all(&dir)
-            .with_context(|| format!("cannot create '{}'", dir.display()))?;
-        Some(
-            tempfile::Builder::new()
-                .prefix(".radn-passes-")
-                .tempdir_in(&dir)
-                .with_context(|| format!("cannot write to '{}'", dir.display()))?,
-        )
-    } else {
-        None
-    };
-    let job =
-        |inputs: Vec<(i64, PathBuf)>, outputs: Vec<Option<PathBuf>>, last: bool| SequenceJob {
-            inputs,
-            outputs,
-            reader: reader.clone(),
-            overwrite: a.overwrite || !last,
-            output_kind: if last {
-                a.output_precision.kind()
-            } else {
-                Some(radn_core::exr_file::SampleKind::F32)
-            },
-        };
-    // the whole run is checked first, also one with nothing left to do: an output that is an
-    // input under another spelling of its path is refused, not counted as done
-    job(inputs.clone(), outputs.clone(), true).validate()?;
-    let mut report = radn_core::job::JobReport::default();
-    let t = std::time::Instant::now();
-    // a finished run (every output there) does no work, however many passes
-    let all_done = !a.overwrite && outputs.iter().flatten().all(|o| o.exists());
-    if all_done {
-        report.skipped = numbers.len();
-    }
-    // pass p denoises the wanted frames and, before the last pass, as many frames around them
-    // as the later passes' windows reach (positions in `all`)
-    let (first, last) = (
-        all.iter().position(|f| *f == numbers[0]),
-        all.iter().position(|f| Some(f) == numbers.last()),
-    );
-    let (first, last) = first
-        .zip(last)
-        .expect("the wanted frames are in their context");
-    let span = |pass: usize| {
-        let e = (passes - pass) * r;
-        first.saturating_sub(e)..(last + e + 1).min(all.len())
-    };
-    // what the current pass reads: positions in `all` and their files
-    let mut reading = 0..all.len();
-    let mut files: Vec<PathBuf> = inputs.into_iter().map(|(_, p)| p).collect();
-    for pass in (1..=passes).filter(|_| !all_done) {
-        let is_last = pass == passes;
-        let outs: Vec<Option<PathBuf>> = reading
-            .clone()
-            .map(|i| {
-                if is_last {
-                    outputs[i].clone()
-                } else {
-                    span(pass).contains(&i).then(|| {
-                        let dir = scratch
-                            .as_ref()
-                            .expect("scratch exists with several passes");
-                        dir.path()
-                            .join(format!("pass{pass}"))
-                            .join(format!("frame_{:08}.exr", all[i]))
-                    })
-                }
-            })
-            .collect();
-        let ins = reading
-            .clone()
-            .zip(&files)
-            .map(|(i, p)| (all[i], p.clone()));
-        let job = job(ins.collect(), outs.clone(), is_last);
-        let pb = crate::progress::fine_frames(
-            job.output_count() as u64,
-            &format!("pass {pass}/{passes}"),
-        );
-        let r = job.run(method.as_ref(), |done, _| {
-            pb.set_position((done * crate::progress::PARTS_PER_FRAME as f64) as u64)
-        })?;
-        pb.finish_and_clear();
-        if is_last {
-            report = r;
+    let run = DenoiseRun {
+        input: SequencePattern::parse_or_folder(&a.input)?,
+        output: SequencePattern::parse(&a.output)?,
+        frames: wanted.iter().map(|(f, _)| *f).collect(),
+        reader,
+        overwrite: a.overwrite,
+        output_kind: a.output_precision.kind(),
+        passes: if a.method == Method::Network {
+            a.passes.max(1)
         } else {
-            reading = span(pass);
-            files = outs.into_iter().flatten().collect();
+            1
+        },
+    };
+    let t = std::time::Instant::now();
+    let mut bar: Option<(usize, indicatif::ProgressBar)> = None;
+    let report = run.run(method.as_ref(), |p| {
+        if bar.as_ref().is_none_or(|(pass, _)| *pass != p.pass) {
+            if let Some((_, pb)) = bar.take() {
+                pb.finish_and_clear();
+            }
+            let pb = crate::progress::fine_frames(
+                p.frames as u64,
+                &format!("pass {}/{}", p.pass, p.passes),
+            );
+            bar = Some((p.pass, pb));
         }
+        if let Some((_, pb)) = &bar {
+            pb.set_position((p.done * crate::progress::PARTS_PER_FRAME as f64) as u64);
+        }
+    })?;
+    if let Some((_, pb)) = bar {
+        pb.finish_and_clear();
     }
     println!(
         "denoised {} frames ({} already done, skipped) in {:.1} s -> {}",

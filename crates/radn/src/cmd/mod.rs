@@ -6,7 +6,6 @@ pub mod eval;
 pub mod inspect;
 pub mod prepare;
 pub mod pseudoref;
-pub mod report;
 pub mod train;
 pub mod utilization;
 pub mod warp;

@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use radn_nn::dataset::{prepare, PrepareOptions};
+use radn_nn::train::dataset::{prepare, PrepareOptions};
 
 /// Arguments of `radn prepare`.
 #[derive(clap::Args)]
@@ -27,7 +27,7 @@ pub struct Args {
 
 /// Cuts the tiles.
 pub fn run(a: Args) -> Result<()> {
-    let scenes = radn_nn::dataset::scene_dirs(&a.data)?.len();
+    let scenes = radn_core::sequence::scene_folders(&a.data, "high")?.len();
     let pb = crate::progress::frames(scenes as u64, "scenes");
     let opts = PrepareOptions {
         tile: a.tile,

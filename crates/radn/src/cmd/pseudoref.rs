@@ -1,12 +1,12 @@
 //! `radn pseudoref`: pseudo-references for a whole rendered dataset (paper section 6), made by
 //! the classic denoiser from each scene's least noisy level.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use anyhow::{anyhow, Result};
+use anyhow::Result;
 use radn_core::frame::Requirements;
 use radn_core::job::SequenceJob;
-use radn_core::sequence::SequencePattern;
+use radn_core::sequence::{scene_folders, SequencePattern};
 
 use super::denoise::ClassicArgs;
 use crate::input::ChannelArgs;
@@ -33,30 +33,9 @@ pub struct Args {
     pub channels: ChannelArgs,
 }
 
-/// The scene folders under `data` that have the given level.
-pub fn scenes(data: &Path, level: &str) -> Result<Vec<PathBuf>> {
-    if data.join(level).is_dir() {
-        return Ok(vec![data.to_path_buf()]);
-    }
-    let mut v: Vec<PathBuf> = std::fs::read_dir(data)
-        .map_err(|e| anyhow!("cannot list '{}': {e}", data.display()))?
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.join(level).is_dir())
-        .collect();
-    v.sort();
-    if v.is_empty() {
-        return Err(anyhow!(
-            "'{}' holds no scene with a '{level}' folder",
-            data.display()
-        ));
-    }
-    Ok(v)
-}
-
 /// Makes the pseudo-references, scene by scene.
 pub fn run(a: Args) -> Result<()> {
-    let scenes = scenes(&a.data, &a.level)?;
+    let scenes = scene_folders(&a.data, &a.level)?;
     let method = a.classic.denoiser();
     let mut jobs = Vec::new();
     for s in &scenes {

@@ -3,12 +3,14 @@
 use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
-use radn_core::align::{align_window, window_indices, AlignParams};
+use radn_core::align::AlignParams;
 use radn_core::exr_file::{ExrFile, SampleKind};
-use radn_core::frame::{Frame, Requirements};
+use radn_core::frame::Requirements;
 use radn_core::output::{ensure_not_input, ensure_writable_dir};
+use radn_core::sequence::sequence_files;
+use radn_core::window::WindowReader;
 
-use crate::input::{sequence_files, ChannelArgs};
+use crate::input::ChannelArgs;
 
 /// Arguments of `radn warp`.
 #[derive(clap::Args)]
@@ -47,33 +49,16 @@ pub fn run(a: Args) -> Result<()> {
         .position(|(f, _)| *f == a.frame)
         .ok_or_else(|| anyhow!("frame {} is not in the sequence '{}'", a.frame, a.input))?;
     let reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
-    let idx = window_indices(pos, files.len(), a.radius);
-    let pb = crate::progress::frames(idx.len() as u64, "reading");
-    let (centre, _) = reader.read(&files[pos].1)?;
-    let (w, h) = (centre.width(), centre.height());
-    let mut frames: Vec<Option<Frame>> = Vec::new();
-    for (k, i) in idx.iter().enumerate() {
-        frames.push(match i {
-            Some(_) if k == a.radius => Some(centre.clone()),
-            Some(i) => {
-                let (f, _) = reader.read(&files[*i].1)?;
-                f.ensure_size(w, h)?;
-                Some(f)
-            }
-            None => None,
-        });
-        pb.inc(1);
-    }
-    pb.finish_and_clear();
-    if idx.iter().any(Option::is_none) {
+    let mut windows = WindowReader::new(&reader, &inputs, a.radius);
+    if windows.indices(pos).iter().any(Option::is_none) {
         tracing::info!("window clamped at the sequence end: missing frames get zero confidence");
     }
-    let window: Vec<Option<&Frame>> = frames.iter().map(Option::as_ref).collect();
     let params = AlignParams {
         mix_centre: !a.no_mix,
         ..AlignParams::default()
     };
-    let win = align_window(&window, &params);
+    let win = windows.aligned(pos, &params)?;
+    let (w, h) = (win.centre().color.width(), win.centre().color.height());
     let mut channels: Vec<(String, Vec<f32>)> = Vec::new();
     for f in &win.frames {
         let l = format!("w{:+}", f.offset);

@@ -13,6 +13,12 @@ pub fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
         .init(device)
 }
 
+/// Forward FLOPs of a stride-1, same-size convolution on a map of `pixels` pixels
+/// (multiply-adds count 2), from the shape of its weights (read without initialising them).
+pub fn conv_flops(conv: &Conv2d, pixels: usize) -> f64 {
+    2.0 * conv.weight.lazy_shape().num_elements() as f64 * pixels as f64
+}
+
 /// A residual block: `x + conv(relu(conv(x)))`.
 #[derive(Module, Debug)]
 pub struct ResBlock {
@@ -32,6 +38,11 @@ impl ResBlock {
     /// Applies the block.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         x.clone() + self.b.forward(relu(self.a.forward(x)))
+    }
+
+    /// Forward FLOPs on a map of `pixels` pixels.
+    pub fn flops(&self, pixels: usize) -> f64 {
+        conv_flops(&self.a, pixels) + conv_flops(&self.b, pixels)
     }
 }
 
@@ -54,5 +65,10 @@ impl DoubleConv {
     /// Applies the block.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         relu(self.b.forward(relu(self.a.forward(x))))
+    }
+
+    /// Forward FLOPs on a map of `pixels` pixels.
+    pub fn flops(&self, pixels: usize) -> f64 {
+        conv_flops(&self.a, pixels) + conv_flops(&self.b, pixels)
     }
 }

@@ -4,10 +4,10 @@
 use burn::tensor::Tensor;
 use serde::{Deserialize, Serialize};
 
-use crate::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
-use crate::demod::Demodulation;
-use crate::loss::{l1, smape};
+use crate::model::demod::Demodulation;
 use crate::model::Prediction;
+use crate::train::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
+use crate::train::loss::{l1, smape};
 
 /// Which per-pixel loss.
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
@@ -26,7 +26,7 @@ pub enum LossFn {
     /// SMAPE or L1.
     Pixel(PixelLoss),
     /// The perceptual loss.
-    Perceptual(Box<crate::vgg::Vgg19>),
+    Perceptual(Box<crate::train::vgg::Vgg19>),
 }
 
 impl LossFn {
@@ -173,7 +173,7 @@ pub fn objective(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::kernel::Kernels;
+    use crate::model::kernel::Kernels;
     use burn::tensor::{Device, TensorData};
 
     #[test]

@@ -4,7 +4,7 @@
 use radn_core::align::AlignedWindow;
 use radn_core::frame::{add_geometry_depths, mean_geometry_depth, FAR_DEPTH};
 
-use crate::config::INPUT_CHANNELS;
+use crate::model::config::INPUT_CHANNELS;
 
 /// Largest magnitude of the log depth ratio fed to the network.
 const DEPTH_CLAMP: f32 = 3.0;

@@ -78,11 +78,11 @@ pub struct NetConfig {
 }
 
 const PRESETS: &[(&str, &str)] = &[
-    ("paper", include_str!("../presets/paper.toml")),
-    ("small", include_str!("../presets/small.toml")),
-    ("unet", include_str!("../presets/unet.toml")),
-    ("tkpcn", include_str!("../presets/tkpcn.toml")),
-    ("spatial", include_str!("../presets/spatial.toml")),
+    ("paper", include_str!("../../presets/paper.toml")),
+    ("small", include_str!("../../presets/small.toml")),
+    ("unet", include_str!("../../presets/unet.toml")),
+    ("tkpcn", include_str!("../../presets/tkpcn.toml")),
+    ("spatial", include_str!("../../presets/spatial.toml")),
 ];
 
 /// Number of input channels per frame: log colour (3), albedo (3), normal (3), depth (1),

@@ -7,8 +7,8 @@ use std::path::Path;
 use burn::store::{ModuleSnapshot, SafetensorsStore};
 use burn::tensor::Device;
 
-use crate::config::NetConfig;
 use crate::error::{NnError, Result};
+use crate::model::config::NetConfig;
 use crate::model::Denoiser;
 
 const CONFIG_KEY: &str = "radn.config";
@@ -21,23 +21,16 @@ pub fn save(denoiser: &Denoiser, path: &Path) -> Result<()> {
         path: path.to_path_buf(),
         detail,
     };
-    let dir = path
-        .parent()
-        .filter(|d| !d.as_os_str().is_empty())
-        .unwrap_or(Path::new("."));
-    std::fs::create_dir_all(dir).map_err(|e| err(e.to_string()))?;
-    let tmp = radn_core::output::output_tempfile(dir, ".radn-model-", ".safetensors")
-        .map_err(|e| err(e.to_string()))?;
-    let mut store = SafetensorsStore::from_file(tmp.path())
-        .metadata(CONFIG_KEY, denoiser.config.to_toml())
-        .metadata(FORMAT_KEY, FORMAT)
-        .overwrite(true);
-    denoiser
-        .net
-        .save_into(&mut store)
-        .map_err(|e| err(format!("{e:?}")))?;
-    tmp.persist(path).map_err(|e| err(e.error.to_string()))?;
-    Ok(())
+    radn_core::output::write_atomically_with(path, |_, tmp| {
+        let mut store = SafetensorsStore::from_file(tmp)
+            .metadata(CONFIG_KEY, denoiser.config.to_toml())
+            .metadata(FORMAT_KEY, FORMAT)
+            .overwrite(true);
+        denoiser
+            .net
+            .save_into(&mut store)
+            .map_err(|e| err(format!("{e:?}")))
+    })
 }
 
 /// The configuration stored in a model file.
@@ -148,11 +141,11 @@ mod tests {
         save(&d, &p).unwrap();
         let e = load(&p, &device).unwrap();
         assert_eq!(e.config, cfg);
-        let n = 5 * crate::config::INPUT_CHANNELS * 6 * 6;
+        let n = 5 * crate::model::config::INPUT_CHANNELS * 6 * 6;
         let x = Tensor::<5>::from_data(
             TensorData::new(
                 (0..n).map(|i| (i % 17) as f32 / 17.0).collect::<Vec<f32>>(),
-                [1, 5, crate::config::INPUT_CHANNELS, 6, 6],
+                [1, 5, crate::model::config::INPUT_CHANNELS, 6, 6],
             ),
             &device,
         );

@@ -13,13 +13,14 @@ use burn::store::ModuleSnapshot;
 use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
-use crate::config::{NetConfig, INPUT_CHANNELS};
-use crate::dataset::{SplitMix, Tile, TileDataset};
-use crate::demod::Demodulation;
 use crate::error::{NnError, Result};
+use crate::model::config::{NetConfig, INPUT_CHANNELS};
+use crate::model::demod::Demodulation;
+use crate::model::store;
 use crate::model::Denoiser;
-use crate::objective::{objective, sample_pair, LossFn, LossMode, PairRule, PixelLoss};
-use crate::store;
+use crate::train::dataset::{SplitMix, Tile, TileDataset};
+use crate::train::objective::{objective, sample_pair, LossFn, LossMode, PairRule, PixelLoss};
+use radn_core::output::{write_atomically_with, write_bytes_atomically};
 
 /// A training run's settings (TOML).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -351,7 +352,7 @@ impl Trainer {
                 })?;
                 // frozen: it shapes the network's gradients but is never trained
                 LossFn::Perceptual(Box::new(
-                    crate::vgg::Vgg19::load(&base.join(p), device)?.no_grad(),
+                    crate::train::vgg::Vgg19::load(&base.join(p), device)?.no_grad(),
                 ))
             }
             l => LossFn::Pixel(l),
@@ -475,7 +476,7 @@ impl Trainer {
                 frames,
             )
             .into_scalar::<f32>() as f64;
-            let out = crate::demod::filter(&pred, b.values, demod.as_ref());
+            let out = crate::model::demod::filter(&pred, b.values, demod.as_ref());
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)
@@ -496,38 +497,24 @@ impl Trainer {
     /// SafeTensors model file), optimizer and progress (each written whole, then renamed).
     pub fn checkpoint(&self) -> Result<()> {
         store::save(&self.denoiser, &self.out.join("model.safetensors"))?;
-        let tmp = self.out.join(".checkpoint.bpk.tmp");
-        let mut bp = burn::store::BurnpackStore::from_file(&tmp).overwrite(true);
-        self.denoiser
-            .net
-            .save_into(&mut bp)
-            .map_err(|e| NnError::Save {
-                path: tmp.clone(),
-                detail: format!("{e:?}"),
-            })?;
-        std::fs::rename(&tmp, self.out.join("checkpoint.bpk")).map_err(|e| NnError::Save {
-            path: self.out.clone(),
-            detail: e.to_string(),
+        let save_err = |path: &Path, e: String| NnError::Save {
+            path: path.to_path_buf(),
+            detail: e,
+        };
+        write_atomically_with(&self.out.join("checkpoint.bpk"), |_, tmp| {
+            let mut bp = burn::store::BurnpackStore::from_file(tmp).overwrite(true);
+            self.denoiser
+                .net
+                .save_into(&mut bp)
+                .map_err(|e| save_err(tmp, format!("{e:?}")))
         })?;
-        let tmp = self.out.join(".optimizer.bpk.tmp");
-        self.optim.save(&tmp).map_err(|e| NnError::Save {
-            path: tmp.clone(),
-            detail: format!("{e:?}"),
-        })?;
-        std::fs::rename(&tmp, self.out.join("optimizer.bpk")).map_err(|e| NnError::Save {
-            path: self.out.clone(),
-            detail: e.to_string(),
+        write_atomically_with(&self.out.join("optimizer.bpk"), |_, tmp| {
+            self.optim
+                .save(tmp)
+                .map_err(|e| save_err(tmp, format!("{e:?}")))
         })?;
         let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
-        let tmp = self.out.join(".state.json.tmp");
-        std::fs::write(&tmp, st).map_err(|e| NnError::Save {
-            path: tmp.clone(),
-            detail: e.to_string(),
-        })?;
-        std::fs::rename(&tmp, self.out.join("state.json")).map_err(|e| NnError::Save {
-            path: self.out.clone(),
-            detail: e.to_string(),
-        })?;
+        write_bytes_atomically(&self.out.join("state.json"), st.as_bytes())?;
         Ok(())
     }
 
@@ -605,14 +592,7 @@ fn drop_metrics_after(path: &Path, step: usize) -> Result<()> {
     if kept.len() == text.len() {
         return Ok(());
     }
-    let save_err = |e: std::io::Error| NnError::Save {
-        path: path.to_path_buf(),
-        detail: e.to_string(),
-    };
-    let dir = path.parent().unwrap_or(Path::new("."));
-    let mut tmp = radn_core::output::output_tempfile(dir, ".metrics", ".csv").map_err(save_err)?;
-    tmp.write_all(kept.as_bytes()).map_err(save_err)?;
-    tmp.persist(path).map_err(|e| save_err(e.error))?;
+    write_bytes_atomically(path, kept.as_bytes())?;
     Ok(())
 }
 
@@ -665,7 +645,7 @@ impl Trainer {
                 }
                 self.checkpoint()?;
                 self.keep_step()?;
-                crate::plot::training_curves(
+                crate::train::curves::training_curves(
                     &self.out.join("metrics.csv"),
                     &self.out.join("curves.png"),
                 )?;

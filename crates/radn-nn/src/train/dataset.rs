@@ -11,15 +11,16 @@ use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use half::f16;
-use radn_core::align::{align_window, window_indices, AlignParams};
-use radn_core::frame::{Frame, FrameReader, Requirements};
+use radn_core::align::AlignParams;
+use radn_core::frame::{FrameReader, Requirements};
 use radn_core::mapping::ChannelMapping;
-use radn_core::sequence::SequencePattern;
+use radn_core::sequence::{scene_folders, SequencePattern};
+use radn_core::window::WindowReader;
 use serde::{Deserialize, Serialize};
 
-use crate::config::INPUT_CHANNELS;
 use crate::error::{NnError, Result};
-use crate::input::{color_values, features};
+use crate::infer::input::{color_values, features};
+use crate::model::config::INPUT_CHANNELS;
 
 /// Levels a network input can come from, least noisy first.
 pub const INPUT_LEVELS: [&str; 3] = ["high", "half", "low"];
@@ -116,7 +117,7 @@ pub fn prepare(
     opts: &PrepareOptions,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Manifest> {
-    let scenes = scene_dirs(data)?;
+    let scenes = scene_folders(data, "high")?;
     std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
     let rb = record_bytes(opts.tile, opts.frames);
     let mut writer = ShardWriter::new(out, rb);
@@ -125,53 +126,60 @@ pub fn prepare(
     for (si, scene) in scenes.iter().enumerate() {
         let pattern = SequencePattern::from_folder(&scene.join("high"))?;
         let numbers = pattern.frames(None)?;
-        let read_level = |level: &str, req: Requirements| -> Result<Option<Vec<Frame>>> {
+        let level_files = |level: &str| -> Result<Option<Vec<PathBuf>>> {
             let dir = scene.join(level);
             if !dir.is_dir() {
                 return Ok(None);
             }
             let p = SequencePattern::from_folder(&dir)?;
-            let mapping = ChannelMapping::builtin("cycles").expect("built-in preset");
-            let reader = FrameReader::new(mapping, req);
-            numbers
-                .iter()
-                .map(|&f| reader.read(&p.path(f)).map(|r| r.0))
-                .collect::<std::result::Result<Vec<_>, _>>()
-                .map(Some)
-                .map_err(NnError::from)
+            Ok(Some(numbers.iter().map(|&f| p.path(f)).collect()))
         };
-        let mut inputs: Vec<Vec<Frame>> = Vec::new();
+        let mapping = ChannelMapping::builtin("cycles").expect("built-in preset");
+        let input_reader = FrameReader::new(mapping.clone(), Requirements::DENOISE);
+        let pseudo_reader = FrameReader::new(mapping, Requirements::COLOR_ONLY);
+        let mut input_files: Vec<Vec<PathBuf>> = Vec::new();
         for level in INPUT_LEVELS {
-            inputs.push(read_level(level, Requirements::DENOISE)?.ok_or_else(|| {
+            input_files.push(level_files(level)?.ok_or_else(|| {
                 NnError::Config(format!(
                     "scene '{}' has no '{level}' level",
                     scene.display()
                 ))
             })?);
         }
-        let pseudo = read_level("pseudo", Requirements::COLOR_ONLY)?;
-        let (w, h) = (inputs[0][0].width(), inputs[0][0].height());
-        if w < opts.tile || h < opts.tile {
-            return Err(NnError::Config(format!(
-                "scene '{}' is {w}x{h}, smaller than the {} px tile",
-                scene.display(),
-                opts.tile
-            )));
-        }
+        let pseudo = level_files("pseudo")?;
+        let mut inputs: Vec<WindowReader> = input_files
+            .iter()
+            .map(|f| WindowReader::new(&input_reader, f, opts.frames / 2))
+            .collect();
+        let mut size: Option<(usize, usize)> = None;
         for (k, _) in numbers.iter().enumerate() {
-            let idx = window_indices(k, numbers.len(), opts.frames / 2);
             let mut feats = Vec::new();
             let mut vals = Vec::new();
-            for level in &inputs {
-                let window: Vec<Option<&Frame>> =
-                    idx.iter().map(|i| i.map(|i| &level[i])).collect();
-                let win = align_window(&window, &AlignParams::default());
+            for level in inputs.iter_mut() {
+                let win = level.aligned(k, &AlignParams::default())?;
                 feats.push(features(&win));
                 vals.push(color_values(&win));
             }
-            let mut targets: Vec<Option<&[f32]>> =
-                inputs.iter().map(|l| Some(l[k].color.data())).collect();
-            targets.push(pseudo.as_ref().map(|p| p[k].color.data()));
+            let (w, h) = *size.get_or_insert_with(|| {
+                let c = inputs[0].frame(k);
+                (c.width(), c.height())
+            });
+            if w < opts.tile || h < opts.tile {
+                return Err(NnError::Config(format!(
+                    "scene '{}' is {w}x{h}, smaller than the {} px tile",
+                    scene.display(),
+                    opts.tile
+                )));
+            }
+            let pseudo_frame = pseudo
+                .as_ref()
+                .map(|p| pseudo_reader.read(&p[k]).map(|r| r.0))
+                .transpose()?;
+            let mut targets: Vec<Option<&[f32]>> = inputs
+                .iter()
+                .map(|l| Some(l.frame(k).color.data()))
+                .collect();
+            targets.push(pseudo_frame.as_ref().map(|p| p.color.data()));
             let mut rng =
                 SplitMix(opts.seed ^ ((si as u64) << 32) ^ (k as u64).wrapping_mul(0x9E37_79B9));
             for _ in 0..opts.tiles_per_window {
@@ -207,29 +215,8 @@ pub fn prepare(
         with_pseudo,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
-    std::fs::write(out.join("manifest.json"), text).map_err(|e| io_err(out, e))?;
+    radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;
     Ok(manifest)
-}
-
-/// Scene folders (those with a `high` level) under `data`, or `data` itself.
-pub fn scene_dirs(data: &Path) -> Result<Vec<PathBuf>> {
-    if data.join("high").is_dir() {
-        return Ok(vec![data.to_path_buf()]);
-    }
-    let mut v: Vec<PathBuf> = std::fs::read_dir(data)
-        .map_err(|e| io_err(data, e))?
-        .flatten()
-        .map(|e| e.path())
-        .filter(|p| p.join("high").is_dir())
-        .collect();
-    v.sort();
-    if v.is_empty() {
-        return Err(NnError::Config(format!(
-            "'{}' holds no scene with a 'high' level",
-            data.display()
-        )));
-    }
-    Ok(v)
 }
 
 fn io_err(p: &Path, e: std::io::Error) -> NnError {

@@ -8,7 +8,7 @@ use burn::tensor::module::unfold4d;
 use burn::tensor::ops::{PadMode, UnfoldOptions};
 use burn::tensor::Tensor;
 
-use crate::config::Activation;
+use crate::model::config::Activation;
 
 /// Normalised per-pixel kernels over a window: `[batch, frames · k², H, W]`, frame-major
 /// (frame 0's k² taps first), each pixel's weights summing to 1.

@@ -8,9 +8,9 @@ use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
 
-use crate::config::{Backbone, INPUT_CHANNELS};
-use crate::layers::{conv3, DoubleConv, ResBlock};
-use crate::ra_block::RobustAverage;
+use crate::model::config::{Backbone, INPUT_CHANNELS};
+use crate::model::layers::{conv3, conv_flops, DoubleConv, ResBlock};
+use crate::model::ra_block::RobustAverage;
 
 /// The paper's ResNet (Fig. 1), with RA blocks after chosen residual blocks and skip
 /// connections from chosen RA blocks to the head.
@@ -50,6 +50,14 @@ impl ResNet {
     /// Channels of the features handed to the head.
     pub fn out_channels(&self) -> usize {
         self.width * (1 + self.skips_from.len())
+    }
+
+    /// Forward FLOPs for one window of `frames` frames of `h × w` pixels.
+    pub fn flops(&self, h: usize, w: usize, frames: usize) -> f64 {
+        let px = h * w;
+        let per_frame =
+            conv_flops(&self.input, px) + self.blocks.iter().map(|b| b.flops(px)).sum::<f64>();
+        frames as f64 * per_frame + self.ra.iter().map(|r| r.flops(px)).sum::<f64>()
     }
 
     /// `[batch · frames, INPUT_CHANNELS, H, W]` → head features.
@@ -114,6 +122,26 @@ impl UNet {
     /// Channels of the features handed to the head.
     pub fn out_channels(&self) -> usize {
         self.widths[0]
+    }
+
+    /// Forward FLOPs for one window of `frames` frames of `h × w` pixels (scale s works on
+    /// `h / 2^s × w / 2^s`).
+    pub fn flops(&self, h: usize, w: usize, frames: usize) -> f64 {
+        let px = |s: usize| (h >> s) * (w >> s);
+        let t = frames as f64;
+        let down: f64 = self
+            .down
+            .iter()
+            .enumerate()
+            .map(|(s, b)| t * b.flops(px(s)) + self.ra.get(s).map_or(0.0, |r| r.flops(px(s))))
+            .sum();
+        let up: f64 = self
+            .up
+            .iter()
+            .enumerate()
+            .map(|(k, b)| t * b.flops(px(self.widths.len() - 2 - k)))
+            .sum();
+        down + up
     }
 
     /// Input sizes must be divisible by 2^(scales − 1).
@@ -197,6 +225,14 @@ impl FrameNet {
         match self {
             FrameNet::ResNet(_) => 1,
             FrameNet::UNet(n) => 1 << (n.widths.len() - 1),
+        }
+    }
+
+    /// Forward FLOPs for one window of `frames` frames of `h × w` pixels.
+    pub fn flops(&self, h: usize, w: usize, frames: usize) -> f64 {
+        match self {
+            FrameNet::ResNet(n) => n.flops(h, w, frames),
+            FrameNet::UNet(n) => n.flops(h, w, frames),
         }
     }
 

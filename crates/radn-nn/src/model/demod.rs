@@ -96,8 +96,8 @@ pub fn filter(pred: &Prediction, values: Tensor<5>, demod: Option<&Demodulation>
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::INPUT_CHANNELS;
-    use crate::kernel::Kernels;
+    use crate::model::config::INPUT_CHANNELS;
+    use crate::model::kernel::Kernels;
     use burn::tensor::{Device, TensorData};
 
     fn tensor5(v: Vec<f32>, dims: [usize; 5]) -> Tensor<5> {

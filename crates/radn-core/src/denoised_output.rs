@@ -1,7 +1,7 @@
-//! Writing a denoised frame band by band: a copy of the input file in which the denoised
-//! channels carry new values and every other part, channel and attribute is kept, written
-//! block by block as bands of denoised rows arrive, so neither the file nor the denoised frame
-//! is ever held whole.
+//! Writing denoised frames: a copy of the input file in which the denoised channels carry new
+//! values and every other part, channel and attribute is kept, through a temporary file renamed
+//! into place — whole ([`write_result`]), or block by block as bands of denoised rows arrive
+//! ([`write_banded`]), so neither the file nor the denoised frame is ever held whole.
 
 use std::ops::Range;
 use std::path::Path;
@@ -15,10 +15,10 @@ use exr::meta::header::Header;
 use exr::meta::{BlockDescription, MetaData};
 use half::f16;
 
+use crate::denoiser::Denoised;
 use crate::error::{Error, Result};
-use crate::exr_file::{check_magic, describe_exr_error, SampleKind};
+use crate::exr_file::{describe_exr_error, open_exr, ExrFile, SampleKind};
 use crate::frame::Frame;
-use crate::job::Denoised;
 use crate::plane::Plane;
 
 /// Where a denoised channel's values come from: plane (0 colour, 1 alpha, 2 + i AOV i) and
@@ -38,12 +38,12 @@ pub fn write_banded(
     band_rows: usize,
     mut band: impl FnMut(Range<usize>) -> Result<Denoised>,
 ) -> Result<()> {
-    check_magic(input)?;
+    let file = open_exr(input)?;
     let decode = |e: exr::error::Error| Error::Decode {
         path: input.to_path_buf(),
         detail: describe_exr_error(e),
     };
-    let meta = MetaData::read_from_file(input, false).map_err(decode)?;
+    let meta = MetaData::read_from_unbuffered(file, false).map_err(decode)?;
     let first = meta.headers.first().ok_or_else(|| Error::Decode {
         path: input.to_path_buf(),
         detail: "the file has no parts".into(),
@@ -371,12 +371,49 @@ fn drop_rows(d: Denoised, n: usize) -> Denoised {
     }
 }
 
+/// Writes denoised buffers over the input's own channels (named by `frame`, which may be any
+/// band of it), keeping everything else; `kind` overrides the storage type of the denoised
+/// channels.
+pub fn write_result(
+    mut file: ExrFile,
+    frame: &Frame,
+    out: &Denoised,
+    path: &Path,
+    kind: Option<SampleKind>,
+) -> Result<()> {
+    if out.color.width() != file.width() || out.color.height() != file.height() {
+        return Err(Error::Incompatible {
+            what: "denoised result".into(),
+            a_w: out.color.width(),
+            a_h: out.color.height(),
+            b_w: file.width(),
+            b_h: file.height(),
+        });
+    }
+    let mut put = |name: &str, data: &[f32]| {
+        if let Some(k) = kind {
+            file.convert_channel(name, k);
+        }
+        file.set_channel(name, data, kind.unwrap_or(SampleKind::F32));
+    };
+    for (c, name) in frame.color_channels.iter().enumerate() {
+        put(name, out.color.channel(c));
+    }
+    if let (Some(a), Some(name)) = (&out.alpha, &frame.alpha_channel) {
+        put(name, a.channel(0));
+    }
+    for (aov, plane) in frame.aovs.iter().zip(&out.aovs) {
+        for (c, name) in aov.channels.iter().enumerate() {
+            put(name, plane.channel(c));
+        }
+    }
+    file.write_atomic(path)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::exr_file::ExrFile;
     use crate::frame::Aov;
-    use crate::job::write_result;
 
     #[test]
     fn band_by_band_writing_equals_writing_the_whole_frame() {

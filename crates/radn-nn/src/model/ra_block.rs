@@ -8,7 +8,7 @@ use burn::nn::conv::Conv2d;
 use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor};
 
-use crate::layers::conv3;
+use crate::model::layers::{conv3, conv_flops};
 
 /// Bias of the weight predictor at initialisation: sigmoid(−2) ≈ 0.12, so a new block starts
 /// close to the identity (a ResNet-friendly start) but passes gradient to its averaging path.
@@ -62,6 +62,15 @@ impl RobustAverage {
             self.hidden_avg.weight.val(),
             self.weight.weight.val(),
         ]
+    }
+
+    /// Forward FLOPs for one window (all its frames) of `pixels` pixels per frame: the
+    /// predictor's first half once per frame, its second half and weight conv once per step.
+    pub fn flops(&self, pixels: usize) -> f64 {
+        let t = self.frames as f64;
+        t * (conv_flops(&self.hidden_self, pixels)
+            + conv_flops(&self.hidden_avg, pixels)
+            + conv_flops(&self.weight, pixels))
     }
 
     /// `h`: `[batch · frames, C, H, W]`, frames consecutive within each batch item.

@@ -80,15 +80,7 @@ impl Canvas {
     }
 
     fn png(&self) -> Vec<u8> {
-        let mut buf = Vec::new();
-        {
-            let mut enc = png::Encoder::new(&mut buf, self.w as u32, self.h as u32);
-            enc.set_color(png::ColorType::Rgb);
-            enc.set_depth(png::BitDepth::Eight);
-            let mut w = enc.write_header().expect("in-memory PNG header");
-            w.write_image_data(&self.px).expect("in-memory PNG data");
-        }
-        buf
+        radn_core::output::encode_png(&self.px, self.w, self.h, radn_core::output::PngColor::Rgb)
     }
 }
 
@@ -242,9 +234,7 @@ pub fn training_curves(csv: &Path, png_path: &Path) -> Result<()> {
         points: psnr,
     }];
     let bytes = two_panels(("loss", &losses), ("validation PSNR (dB)", &psnrs));
-    let tmp = png_path.with_extension("png.tmp");
-    std::fs::write(&tmp, bytes).map_err(|e| err(e.to_string()))?;
-    std::fs::rename(&tmp, png_path).map_err(|e| err(e.to_string()))
+    radn_core::output::write_bytes_atomically(png_path, &bytes).map_err(NnError::from)
 }
 
 #[cfg(test)]

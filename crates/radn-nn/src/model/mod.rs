@@ -1,5 +1,16 @@
-//! The networks: the paper's RA network and the two baselines, behind one interface that
-//! predicts kernels for a window and applies them to any planes.
+//! The model: the paper's RA network and the two baselines, behind one interface that
+//! predicts kernels for a window and applies them to any planes, with everything a network is
+//! built from — its configuration ([`config`]), layers ([`layers`]), Robust Average blocks
+//! ([`ra_block`]), per-frame backbones ([`backbone`]), kernels and their activation
+//! ([`kernel`]), albedo demodulation ([`demod`]) — and its files ([`store`]).
+
+pub mod backbone;
+pub mod config;
+pub mod demod;
+pub mod kernel;
+pub mod layers;
+pub mod ra_block;
+pub mod store;
 
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
@@ -7,10 +18,10 @@ use burn::nn::Initializer;
 use burn::tensor::activation::{relu, softmax};
 use burn::tensor::{Device, Tensor};
 
-use crate::backbone::FrameNet;
-use crate::config::{Arch, NetConfig, INPUT_CHANNELS};
-use crate::kernel::{eta, Kernels};
-use crate::layers::conv3;
+use crate::model::backbone::FrameNet;
+use crate::model::config::{Arch, NetConfig, INPUT_CHANNELS};
+use crate::model::kernel::{eta, Kernels};
+use crate::model::layers::{conv3, conv_flops};
 
 /// A kernel head whose first kernels are close to a box filter: equal biases and weights so
 /// small that the raw outputs vary by ~1e-3 (well above the default threshold, so η passes
@@ -143,7 +154,7 @@ impl Denoiser {
     }
 
     /// The RA blocks of the network (none for the baselines).
-    pub fn ra_blocks(&self) -> Vec<&crate::ra_block::RobustAverage> {
+    pub fn ra_blocks(&self) -> Vec<&crate::model::ra_block::RobustAverage> {
         match &self.net {
             Network::Ra(n) => n.backbone.ra_blocks(),
             _ => Vec::new(),
@@ -162,7 +173,7 @@ impl Denoiser {
     pub fn receptive_radius(&self) -> Option<usize> {
         let k = self.config.kernel_size / 2;
         match &self.config.backbone {
-            crate::config::Backbone::Resnet {
+            crate::model::config::Backbone::Resnet {
                 blocks, ra_after, ..
             } => {
                 let ra = if self.config.arch == Arch::Ra {
@@ -176,7 +187,33 @@ impl Denoiser {
                     Arch::Tkpcn => backbone + 3 + k + k,
                 })
             }
-            crate::config::Backbone::Unet { .. } => None,
+            crate::model::config::Backbone::Unet { .. } => None,
+        }
+    }
+
+    /// Forward FLOPs of predicting kernels for one `h × w` window and applying them to
+    /// `channels` channels (multiply-adds count 2), counted from the network's own layers, so
+    /// the count follows whatever the network is.
+    pub fn forward_flops(&self, h: usize, w: usize, channels: usize) -> f64 {
+        let px = h * w;
+        let t = self.config.frames;
+        let k2 = self.config.kernel_size * self.config.kernel_size;
+        // a k×k×frames kernel applied to every channel of every pixel
+        let apply = |frames: usize| 2.0 * (frames * k2 * channels * px) as f64;
+        match &self.net {
+            Network::Ra(n) => {
+                n.backbone.flops(h, w, t) + t as f64 * conv_flops(&n.head, px) + apply(t)
+            }
+            Network::Spatial(n) => n.backbone.flops(h, w, 1) + conv_flops(&n.head, px) + apply(1),
+            Network::Tkpcn(n) => {
+                n.backbone.flops(h, w, t)
+                    + t as f64 * conv_flops(&n.spatial_head, px)
+                    + conv_flops(&n.temporal_a, px)
+                    + conv_flops(&n.temporal_b, px)
+                    + conv_flops(&n.temporal_head, px)
+                    + t as f64 * apply(1)
+                    + apply(t)
+            }
         }
     }
 
@@ -299,6 +336,50 @@ impl Prediction {
 mod tests {
     use super::*;
     use burn::tensor::TensorData;
+
+    #[test]
+    fn flop_counts_come_from_the_layers_the_network_has() {
+        let device = Device::flex();
+        let small = NetConfig::preset("small").unwrap();
+        let d = Denoiser::new(small.clone(), &device);
+        let f = d.forward_flops(32, 32, 3);
+        // the ResNet by hand: input conv, 2 convs per block, RA predictors, head, application
+        let crate::model::config::Backbone::Resnet {
+            blocks,
+            width,
+            ra_after,
+            skips_from,
+        } = &small.backbone
+        else {
+            panic!("small is a ResNet")
+        };
+        let px = 32.0 * 32.0;
+        let conv = |cin: usize, cout: usize| 2.0 * (cin * cout * 9) as f64 * px;
+        let (t, k2) = (
+            small.frames as f64,
+            (small.kernel_size * small.kernel_size) as f64,
+        );
+        let hidden = (width / 2).max(8);
+        let by_hand = t
+            * (conv(INPUT_CHANNELS, *width)
+                + *blocks as f64 * 2.0 * conv(*width, *width)
+                + ra_after.len() as f64 * (2.0 * conv(*width, hidden) + conv(hidden, 1))
+                + conv(width * (1 + skips_from.len()), k2 as usize))
+            + 2.0 * t * k2 * 3.0 * px;
+        assert!((f - by_hand).abs() < 1e-6 * by_hand, "{f} vs {by_hand}");
+        // it follows the network: area scales it, one more block adds its two convolutions
+        assert!((d.forward_flops(64, 32, 3) - 2.0 * f).abs() < 1e-6 * f);
+        let mut deeper = small.clone();
+        if let crate::model::config::Backbone::Resnet { blocks, .. } = &mut deeper.backbone {
+            *blocks += 1;
+        }
+        let g = Denoiser::new(deeper, &device).forward_flops(32, 32, 3);
+        assert!((g - f - t * 2.0 * conv(*width, *width)).abs() < 1e-6 * f);
+        // a UNet's coarse scales cost a quarter per level
+        let unet = Denoiser::new(NetConfig::preset("unet").unwrap(), &device);
+        let (a, b) = (unet.forward_flops(32, 32, 3), unet.forward_flops(64, 64, 3));
+        assert!((b / a - 4.0).abs() < 0.05, "{a} {b}");
+    }
 
     fn window(b: usize, t: usize, h: usize, w: usize, device: &Device) -> Tensor<5> {
         let n = b * t * INPUT_CHANNELS * h * w;

@@ -1,82 +1,58 @@
-//! `radn eval --html DIR`: a report to look at rather than read — side-by-side crops of every
-//! method against the reference, kernel-weight heat maps, the metric table and per-frame plots.
+//! The HTML report (`radn eval --html DIR`): a report to look at rather than read —
+//! side-by-side crops of every method against the reference, kernel-weight heat maps, the
+//! metric table and per-frame plots.
 
 use std::fmt::Write as _;
-use std::path::Path;
+use std::path::{Path, PathBuf};
 
-use anyhow::{anyhow, Result};
-use radn_core::align::{align_window, window_indices};
-use radn_core::frame::{Frame, Requirements};
-use radn_core::metrics::tonemap;
-use radn_core::Plane;
-
-use super::eval::{evaluate, mean_row, write_atomic, write_png, Args, FrameMetrics};
-use crate::input::sequence_files;
+use crate::error::{Error, Result};
+use crate::evaluation::{mean_row, FrameMetrics};
+use crate::metrics::tonemap;
+use crate::output::{write_bytes_atomically, write_png, PngColor};
+use crate::plane::Plane;
 
 /// One sequence shown in the report.
-struct Shown {
-    name: String,
-    spec: String,
-    rows: Vec<FrameMetrics>,
+pub struct Shown {
+    /// Its name in the report.
+    pub name: String,
+    /// Where it was read from (pattern or folder).
+    pub spec: String,
+    /// Its metrics per frame.
+    pub rows: Vec<FrameMetrics>,
     /// Colour of the frame the crops come from.
-    color: Plane,
+    pub color: Plane,
 }
 
 /// Side length of the square crops (pixels of the frame; shown enlarged when small).
 const CROP: usize = 96;
 
-/// Builds the report in the `--html` folder.
-pub fn run(a: &Args) -> Result<()> {
-    let dir = a.html.clone().expect("checked by the caller");
-    let reference_spec = a.reference.clone().expect("clap requires it");
-    let mut specs = vec![(a.name.clone(), a.result.clone().expect("clap requires it"))];
-    for c in &a.compare {
-        let (n, p) = c
-            .split_once('=')
-            .ok_or_else(|| anyhow!("--compare '{c}' must be NAME=PATTERN"))?;
-        specs.push((n.to_string(), p.to_string()));
-    }
-    // frames every sequence has; crops come from the middle one
-    let mut shown = Vec::new();
-    let mut reference: Option<(i64, Plane)> = None;
-    let mut first = Some(evaluate(a, &specs[0].1, &reference_spec)?);
-    let frames: Vec<i64> = first
-        .iter()
-        .flat_map(|e| &e.rows)
-        .map(|r| r.frame)
-        .collect();
-    let display = frames[frames.len() / 2];
-    for (name, spec) in &specs {
-        let ev = match first.take() {
-            Some(e) => e,
-            None => evaluate(a, spec, &reference_spec)?,
-        };
-        let (_, color, refc) = ev
-            .planes
-            .iter()
-            .find(|(f, _, _)| *f == display)
-            .ok_or_else(|| anyhow!("'{spec}' has no frame {display} (the report's frame)"))?
-            .clone();
-        reference.get_or_insert((display, refc));
-        shown.push(Shown {
-            name: name.clone(),
-            spec: spec.clone(),
-            rows: ev.rows,
-            color,
-        });
-    }
-    let (_, reference) = reference.expect("at least one sequence");
+/// Writes the report into `dir` (`index.html` and its images in `img/`): crops of every
+/// `shown` sequence and of the `reference` (colour of frame `display`, read from
+/// `reference_spec`) where the reference has the most detail and where the first sequence errs
+/// most, the metric table and per-frame charts, and — given the kernel-weight planes of each
+/// window frame at `display` (`heat`, in window order) — their heat maps. Returns the page's path.
+pub fn write_report(
+    dir: &Path,
+    shown: &[Shown],
+    reference_spec: &str,
+    reference: &Plane,
+    display: i64,
+    heat: Option<&[Plane]>,
+) -> Result<PathBuf> {
     let img = dir.join("img");
-    std::fs::create_dir_all(&img).map_err(|e| anyhow!("cannot create '{}': {e}", img.display()))?;
+    std::fs::create_dir_all(&img).map_err(|source| Error::Write {
+        path: img.clone(),
+        source,
+    })?;
 
     // crops: the most detailed region of the reference, and where the main result errs most
-    let crops = choose_crops(&reference, &shown[0].color);
+    let crops = choose_crops(reference, &shown[0].color);
     write_png(
         &img.join("reference_full.png"),
-        &outlined(&rgb8(&reference), reference.width(), &crops),
+        &outlined(&rgb8(reference), reference.width(), &crops),
         reference.width(),
         reference.height(),
-        png::ColorType::Rgb,
+        PngColor::Rgb,
     )?;
     for (k, &(x, y, s)) in crops.iter().enumerate() {
         for (j, sh) in shown.iter().enumerate() {
@@ -88,16 +64,12 @@ pub fn run(a: &Args) -> Result<()> {
     }
 
     // kernel weight of each window frame at the report's frame
-    let heat = match &a.input {
-        Some(input) => Some(weight_maps(a, input, display, &img)?),
-        None => None,
-    };
+    let heat = heat.map(|mass| weight_maps(mass, &img)).transpose()?;
 
-    let html = page(&shown, &reference_spec, display, &crops, heat.as_deref());
+    let html = page(shown, reference_spec, display, &crops, heat.as_deref());
     let index = dir.join("index.html");
-    write_atomic(&index, html.as_bytes())?;
-    println!("report: {}", index.display());
-    Ok(())
+    write_bytes_atomically(&index, html.as_bytes())?;
+    Ok(index)
 }
 
 /// Two square regions (x, y, size): the one with the most reference detail (gradient energy)
@@ -105,8 +77,8 @@ pub fn run(a: &Args) -> Result<()> {
 fn choose_crops(reference: &Plane, result: &Plane) -> Vec<(usize, usize, usize)> {
     let (w, h) = (reference.width(), reference.height());
     let s = CROP.min(w).min(h);
-    let tr = radn_core::metrics::tonemap_plane(reference);
-    let to = radn_core::metrics::tonemap_plane(result);
+    let tr = crate::metrics::tonemap_plane(reference);
+    let to = crate::metrics::tonemap_plane(result);
     let step = (s / 4).max(1);
     let score = |x0: usize, y0: usize, f: &dyn Fn(usize, usize) -> f32| -> f32 {
         let mut t = 0.0;
@@ -201,7 +173,7 @@ fn write_crop(path: &Path, c: &Plane) -> Result<()> {
             big.extend_from_slice(&rgb[i..i + 3]);
         }
     }
-    write_png(path, &big, w, h, png::ColorType::Rgb)
+    write_png(path, &big, w, h, PngColor::Rgb)
 }
 
 /// A weight in [0, 1] as a colour: dark blue (none) through teal and green to yellow (all).
@@ -223,26 +195,10 @@ fn ramp(v: f32) -> [u8; 3] {
     out
 }
 
-/// Writes the kernel weight of each window frame at `display` as colour maps; returns the
-/// window offsets with their mean weight.
-fn weight_maps(a: &Args, input: &str, display: i64, img: &Path) -> Result<Vec<(i64, f64)>> {
-    let files = sequence_files(input, None)?;
-    let pos = files
-        .iter()
-        .position(|(f, _)| *f == display)
-        .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
-    let device = radn_nn::burn::tensor::Device::flex();
-    let d = crate::model::load(a.model.as_deref(), &device)?;
-    let t = d.config.frames;
-    let net = radn_nn::infer::NetworkDenoiser::new(d, device);
-    let reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
-    let idx = window_indices(pos, files.len(), t / 2);
-    let frames: Vec<Option<Frame>> = idx
-        .iter()
-        .map(|i| i.map(|i| reader.read(&files[i].1).map(|r| r.0)).transpose())
-        .collect::<Result<_, _>>()?;
-    let window: Vec<Option<&Frame>> = frames.iter().map(|f| f.as_ref()).collect();
-    let mass = net.utilization(&align_window(&window, &net.align));
+/// Writes the kernel weight of each window frame (`mass`, in window order) as colour maps;
+/// returns the window offsets with their mean weight.
+fn weight_maps(mass: &[Plane], img: &Path) -> Result<Vec<(i64, f64)>> {
+    let t = mass.len();
     let mut out = Vec::new();
     for (k, m) in mass.iter().enumerate() {
         let offset = k as i64 - (t / 2) as i64;
@@ -252,7 +208,7 @@ fn weight_maps(a: &Args, input: &str, display: i64, img: &Path) -> Result<Vec<(i
             &rgb,
             m.width(),
             m.height(),
-            png::ColorType::Rgb,
+            PngColor::Rgb,
         )?;
         let mean = m.data().iter().map(|&v| v as f64).sum::<f64>() / m.pixels() as f64;
         out.push((offset, mean));

@@ -1,18 +1,24 @@
 //! Denoising with a network: windows aligned by radn-core, kernels predicted tile by tile with a
 //! halo of the network's receptive field (so the result does not depend on the tile size and
 //! the network's memory does not grow with the frame), applied to colour, AOVs and alpha.
+//! The network's inputs are built in [`input`]; temporal utilisation (paper Table 1) is
+//! measured in [`utilization`].
+
+pub mod input;
+pub mod utilization;
 
 use burn::tensor::{Device, Tensor, TensorData};
 use std::ops::Range;
 
-use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow, FrameBand};
+use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
+use radn_core::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
+use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
-use radn_core::job::{BandDenoiser, Denoised, FrameStats, WindowDenoiser};
 use radn_core::Plane;
 
-use crate::config::INPUT_CHANNELS;
-use crate::demod::{filter, Demodulation};
-use crate::input::{depth_scale, features_in, Region};
+use crate::infer::input::{depth_scale, features_in, Region};
+use crate::model::config::INPUT_CHANNELS;
+use crate::model::demod::{filter, Demodulation};
 use crate::model::Denoiser;
 
 /// A trained network as a sequence method.
@@ -280,8 +286,8 @@ impl BandDenoiser for NetworkDenoiser {
     }
 
     fn halo(&self) -> usize {
-        // the network's receptive field, and the two rows banded alignment gets wrong at a cut
-        self.denoiser.receptive_radius().unwrap_or(0) + 2
+        // the network's receptive field, and the rows banded alignment gets wrong at a cut
+        self.denoiser.receptive_radius().unwrap_or(0) + ALIGNMENT_EDGE_ROWS
     }
 
     fn denoise_band(
@@ -298,7 +304,7 @@ impl BandDenoiser for NetworkDenoiser {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::NetConfig;
+    use crate::model::config::NetConfig;
     use radn_core::align::AlignedFrame;
 
     fn window(w: usize, h: usize) -> AlignedWindow {

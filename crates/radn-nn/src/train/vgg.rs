@@ -13,8 +13,8 @@ use burn::tensor::ops::MaxPoolOptions;
 use burn::tensor::{Device, Tensor};
 
 use crate::error::{NnError, Result};
-use crate::layers::conv3;
-use crate::loss::smape;
+use crate::model::layers::conv3;
+use crate::train::loss::smape;
 
 /// Input and output channels of VGG19's sixteen 3×3 convolutions, in order.
 const LAYERS: [(usize, usize); 16] = [
@@ -151,7 +151,7 @@ mod tests {
         assert!(b.loss(x, y).into_scalar::<f32>() > 0.0);
         // a file without VGG's tensors is refused with a clear message
         let other = dir.path().join("other.safetensors");
-        crate::store::save(
+        crate::model::store::save(
             &crate::Denoiser::new(crate::NetConfig::preset("spatial").unwrap(), &device),
             &other,
         )

@@ -1,0 +1,64 @@
+//! The denoiser contract: what a denoising method implements (a whole-window form, and a
+//! band-by-band form where its result allows one) and what it returns, so that the sequence
+//! job ([`crate::job`]) runs the classic denoiser and the networks alike.
+
+use std::ops::Range;
+
+use crate::banding::{FrameBand, FrameStats};
+use crate::error::Result;
+use crate::frame::Frame;
+use crate::plane::Plane;
+
+/// The denoised buffers of one frame.
+#[derive(Clone, Debug)]
+pub struct Denoised {
+    /// Beauty RGB.
+    pub color: Plane,
+    /// Alpha, if the input has alpha.
+    pub alpha: Option<Plane>,
+    /// AOVs in the reader's order.
+    pub aovs: Vec<Plane>,
+}
+
+/// A method that denoises the centre frame of an aligned window of frames.
+pub trait WindowDenoiser: Sync {
+    /// Frames on each side of the centre (2 for the paper's 5-frame window).
+    fn radius(&self) -> usize;
+    /// Per-frame preparation with the frame's neighbours (e.g. motion refinement); runs once per
+    /// frame before any window uses it.
+    fn prepare(&self, _frame: &mut Frame, _prev: Option<&Frame>, _next: Option<&Frame>) {}
+    /// Whether `prepare` changes frames; when it does not, windows use the decoded frames
+    /// themselves instead of prepared copies (a whole set of frame planes less in memory).
+    fn prepares_frames(&self) -> bool {
+        false
+    }
+    /// Whether `prepare` needs the neighbours (so they are decoded one frame further out).
+    fn prepare_needs_neighbours(&self) -> bool {
+        false
+    }
+    /// Denoises `window[radius]`; `None` marks frames beyond the sequence ends.
+    fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised>;
+    /// The method's band-by-band form, when it has one: the job then reads and denoises each
+    /// frame in horizontal bands, so memory follows the band, not the frame.
+    fn banded(&self) -> Option<&dyn BandDenoiser> {
+        None
+    }
+}
+
+/// A method that denoises a frame band by band from bands of its window, with exactly the
+/// result of denoising whole frames (the network: its receptive field is finite, and aligning
+/// a band needs only the rows the motion reaches).
+pub trait BandDenoiser: Sync {
+    /// Output rows per band.
+    fn band_rows(&self) -> usize;
+    /// Rows of the centre frame beyond a band's output rows that denoising the band reads.
+    fn halo(&self) -> usize;
+    /// Denoises rows `out` (band-local) of the centre band of `window`, whose bands hold the
+    /// rows [`crate::banding::window_band_rows`] gives; `centre` describes the whole centre frame.
+    fn denoise_band(
+        &self,
+        window: &[Option<FrameBand>],
+        out: Range<usize>,
+        centre: &FrameStats,
+    ) -> Result<Denoised>;
+}

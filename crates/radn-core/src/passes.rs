@@ -1,0 +1,183 @@
+//! A denoising run as a user asks for it: chosen frames of a sequence, written to an output
+//! pattern, in one pass or several (paper section 3: running the network again on its own
+//! output widens the temporal reach). A frame range is denoised exactly as the same frames of
+//! a run over the whole sequence: every pass reads the neighbours beyond the range that its
+//! windows, and the later passes' windows, reach.
+
+use std::path::PathBuf;
+
+use crate::denoiser::WindowDenoiser;
+use crate::error::{Error, Result};
+use crate::exr_file::SampleKind;
+use crate::frame::FrameReader;
+use crate::job::{JobReport, SequenceJob};
+use crate::sequence::SequencePattern;
+
+/// Chosen frames of a sequence to denoise into an output pattern, in `passes` passes.
+pub struct DenoiseRun {
+    /// The input sequence.
+    pub input: SequencePattern,
+    /// Where the results go (the same frame numbers).
+    pub output: SequencePattern,
+    /// The frames to write, in order (each must exist in `input`).
+    pub frames: Vec<i64>,
+    /// How frames are read.
+    pub reader: FrameReader,
+    /// Recompute frames whose output already exists.
+    pub overwrite: bool,
+    /// Storage type of the denoised channels (None: the input channel's own type).
+    pub output_kind: Option<SampleKind>,
+    /// Passes in all (at least 1): pass p + 1 denoises pass p's results.
+    pub passes: usize,
+}
+
+/// Where a run is: pass `pass` of `passes` has written `done` (fractional while a frame is in
+/// progress) of its `frames` frames.
+#[derive(Clone, Copy, Debug)]
+pub struct PassProgress {
+    /// The pass, from 1.
+    pub pass: usize,
+    /// Passes in all.
+    pub passes: usize,
+    /// Frames of this pass done.
+    pub done: f64,
+    /// Frames this pass writes.
+    pub frames: usize,
+}
+
+impl DenoiseRun {
+    /// Runs every pass with `method`; `progress` is told how each pass advances. Earlier
+    /// passes write full-precision results into a scratch folder beside the output (removed
+    /// at the end); the last pass writes the outputs. A run whose outputs all exist (and that
+    /// does not overwrite) does no work, however many passes. The report is the last pass's.
+    pub fn run(
+        &self,
+        method: &dyn WindowDenoiser,
+        mut progress: impl FnMut(PassProgress),
+    ) -> Result<JobReport> {
+        if self.output.as_str() == self.input.as_str() {
+            return Err(Error::OutputIsInput {
+                pattern: self.output.as_str().to_string(),
+            });
+        }
+        let passes = self.passes.max(1);
+        let numbers = &self.frames;
+        // the frames every window of every pass reads
+        let r = method.radius();
+        let context = (passes - 1) * r + r + usize::from(method.prepare_needs_neighbours());
+        let all = self.input.with_context(numbers, context)?;
+        let inputs: Vec<(i64, PathBuf)> = all.iter().map(|&f| (f, self.input.path(f))).collect();
+        let outputs: Vec<Option<PathBuf>> = all
+            .iter()
+            .map(|f| numbers.contains(f).then(|| self.output.path(*f)))
+            .collect();
+        let job =
+            |inputs: Vec<(i64, PathBuf)>, outputs: Vec<Option<PathBuf>>, last: bool| SequenceJob {
+                inputs,
+                outputs,
+                reader: self.reader.clone(),
+                overwrite: self.overwrite || !last,
+                output_kind: if last {
+                    self.output_kind
+                } else {
+                    Some(SampleKind::F32)
+                },
+            };
+        // the whole run is checked first, also one with nothing left to do: an output that is
+        // an input under another spelling of its path is refused, not counted as done
+        job(inputs.clone(), outputs.clone(), true).validate()?;
+        // a finished run (every output there) does no work, however many passes
+        if !self.overwrite && outputs.iter().flatten().all(|o| o.exists()) {
+            return Ok(JobReport {
+                skipped: numbers.len(),
+                ..JobReport::default()
+            });
+        }
+        // earlier passes write to a scratch folder beside the output; the last writes the output
+        let scratch = if passes > 1 {
+            let dir = self
+                .output
+                .path(numbers[0])
+                .parent()
+                .map(PathBuf::from)
+                .unwrap_or_default();
+            let write_err = |source| Error::Write {
+                path: dir.clone(),
+                source,
+            };
+            std::fs::create_dir_all(&dir).map_err(write_err)?;
+            Some(
+                tempfile::Builder::new()
+                    .prefix(".radn-passes-")
+                    .tempdir_in(&dir)
+                    .map_err(write_err)?,
+            )
+        } else {
+            None
+        };
+        // pass p denoises the wanted frames and, before the last pass, as many frames around
+        // them as the later passes' windows reach (positions in `all`)
+        let (first, last) = (
+            all.iter().position(|f| *f == numbers[0]),
+            all.iter().position(|f| Some(f) == numbers.last()),
+        );
+        let (first, last) = first
+            .zip(last)
+            .expect("the wanted frames are in their context");
+        let span = |pass: usize| {
+            let e = (passes - pass) * r;
+            first.saturating_sub(e)..(last + e + 1).min(all.len())
+        };
+        // what the current pass reads: positions in `all` and their files
+        let mut reading = 0..all.len();
+        let mut files: Vec<PathBuf> = inputs.into_iter().map(|(_, p)| p).collect();
+        let mut report = JobReport::default();
+        for pass in 1..=passes {
+            let is_last = pass == passes;
+            let outs: Vec<Option<PathBuf>> = reading
+                .clone()
+                .map(|i| {
+                    if is_last {
+                        outputs[i].clone()
+                    } else {
+                        span(pass).contains(&i).then(|| {
+                            let dir = scratch
+                                .as_ref()
+                                .expect("scratch exists with several passes");
+                            dir.path()
+                                .join(format!("pass{pass}"))
+                                .join(format!("frame_{:08}.exr", all[i]))
+                        })
+                    }
+                })
+                .collect();
+            let ins = reading
+                .clone()
+                .zip(&files)
+                .map(|(i, p)| (all[i], p.clone()));
+            let job = job(ins.collect(), outs.clone(), is_last);
+            let frames = job.output_count();
+            progress(PassProgress {
+                pass,
+                passes,
+                done: 0.0,
+                frames,
+            });
+            let r = job.run(method, |done, _| {
+                progress(PassProgress {
+                    pass,
+                    passes,
+                    done,
+                    frames,
+                })
+            })?;
+            if is_last {
+                report = r;
+            } else {
+                reading = span(pass);
+                files = outs.into_iter().flatten().collect();
+            }
+        }
+        Ok(report)
+    }
+}
