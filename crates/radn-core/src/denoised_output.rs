@@ -17,7 +17,7 @@ use half::f16;
 
 use crate::denoiser::Denoised;
 use crate::error::{Error, Result};
-use crate::exr_file::{describe_exr_error, open_exr, ExrFile, SampleKind};
+use crate::exr_file::{describe_exr_error, read_headers, ExrFile, SampleKind};
 use crate::frame::Frame;
 use crate::plane::Plane;
 
@@ -38,12 +38,7 @@ pub fn write_banded(
     band_rows: usize,
     mut band: impl FnMut(Range<usize>) -> Result<Denoised>,
 ) -> Result<()> {
-    let file = open_exr(input)?;
-    let decode = |e: exr::error::Error| Error::Decode {
-        path: input.to_path_buf(),
-        detail: describe_exr_error(e),
-    };
-    let meta = MetaData::read_from_unbuffered(file, false).map_err(decode)?;
+    let meta = read_headers(input)?;
     let first = meta.headers.first().ok_or_else(|| Error::Decode {
         path: input.to_path_buf(),
         detail: "the file has no parts".into(),

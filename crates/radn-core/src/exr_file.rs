@@ -77,6 +77,14 @@ pub(crate) fn open_exr(path: &Path) -> Result<std::fs::File> {
     Ok(f)
 }
 
+/// A file's headers alone (no pixel data decoded), one opening of the file.
+pub(crate) fn read_headers(path: &Path) -> Result<exr::meta::MetaData> {
+    exr::meta::MetaData::read_from_unbuffered(open_exr(path)?, false).map_err(|e| Error::Decode {
+        path: path.to_path_buf(),
+        detail: describe_exr_error(e),
+    })
+}
+
 impl ExrFile {
     /// Reads and decodes a whole file; every failure names the file.
     pub fn read(path: impl AsRef<Path>) -> Result<Self> {
@@ -225,12 +233,7 @@ impl ExrFile {
     /// whole sequence can be checked before hours of work start; failures name the file.
     pub fn read_size(path: impl AsRef<Path>) -> Result<(usize, usize)> {
         let path = path.as_ref().to_path_buf();
-        let file = open_exr(&path)?;
-        let meta =
-            exr::meta::MetaData::read_from_unbuffered(file, false).map_err(|e| Error::Decode {
-                path: path.clone(),
-                detail: describe_exr_error(e),
-            })?;
+        let meta = read_headers(&path)?;
         let h = meta.headers.first().ok_or_else(|| Error::Decode {
             path: path.clone(),
             detail: "the file has no parts".into(),
@@ -242,12 +245,7 @@ impl ExrFile {
     /// headers alone: what choosing a channel preset needs, without decoding any pixel.
     pub fn read_channel_names(path: impl AsRef<Path>) -> Result<Vec<String>> {
         let path = path.as_ref().to_path_buf();
-        let file = open_exr(&path)?;
-        let meta =
-            exr::meta::MetaData::read_from_unbuffered(file, false).map_err(|e| Error::Decode {
-                path: path.clone(),
-                detail: describe_exr_error(e),
-            })?;
+        let meta = read_headers(&path)?;
         let mut names: Vec<String> = meta
             .headers
             .iter()
@@ -383,6 +381,46 @@ impl ExrFile {
         names
     }
 
+    /// Value statistics of every channel (sorted by name), as `radn inspect` shows them.
+    pub fn channel_stats(&self) -> Vec<ChannelStats> {
+        self.channel_names()
+            .iter()
+            .map(|n| {
+                let v = self.channel_f32(n).expect("listed channel exists");
+                let (mut min, mut max, mut sum, mut nan, mut inf, mut finite) =
+                    (f32::INFINITY, f32::NEG_INFINITY, 0f64, 0, 0, 0usize);
+                for &x in &v {
+                    if x.is_nan() {
+                        nan += 1;
+                    } else if x.is_infinite() {
+                        inf += 1;
+                    } else {
+                        min = min.min(x);
+                        max = max.max(x);
+                        sum += x as f64;
+                        finite += 1;
+                    }
+                }
+                ChannelStats {
+                    name: n.clone(),
+                    kind: self
+                        .channel_kind(n)
+                        .expect("listed channel exists")
+                        .to_string(),
+                    min,
+                    max,
+                    mean: if finite > 0 {
+                        sum / finite as f64
+                    } else {
+                        f64::NAN
+                    },
+                    nan,
+                    inf,
+                }
+            })
+            .collect()
+    }
+
     /// True when the file has a channel of this full name.
     pub fn has_channel(&self, name: &str) -> bool {
         self.index.contains_key(name)
@@ -513,6 +551,26 @@ impl ExrFile {
                 })
         })
     }
+}
+
+/// Value statistics of one channel: range and mean of its finite samples, and how many are
+/// NaN or infinite.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct ChannelStats {
+    /// Full channel name.
+    pub name: String,
+    /// Storage type (`half`, `float`, `uint`).
+    pub kind: String,
+    /// Smallest finite sample (+inf when none is finite).
+    pub min: f32,
+    /// Largest finite sample (−inf when none is finite).
+    pub max: f32,
+    /// Mean of the finite samples (NaN when none is finite).
+    pub mean: f64,
+    /// NaN samples.
+    pub nan: usize,
+    /// Infinite samples.
+    pub inf: usize,
 }
 
 /// One part (layer) of an EXR file, as shown by `radn inspect`.

@@ -105,9 +105,20 @@ impl SequenceJob {
     pub fn run(
         &self,
         method: &dyn WindowDenoiser,
-        mut progress: impl FnMut(f64, usize),
+        progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
         let (_, height) = self.validate()?;
+        self.run_validated(method, height, progress)
+    }
+
+    /// [`SequenceJob::run`] for a job whose [`SequenceJob::validate`] has passed (its frames
+    /// `height` rows tall): a run of several passes checks the whole run once, not each pass.
+    pub(crate) fn run_validated(
+        &self,
+        method: &dyn WindowDenoiser,
+        height: usize,
+        mut progress: impl FnMut(f64, usize),
+    ) -> Result<JobReport> {
         if let Some(banded) = method.banded() {
             return self.run_banded(method.radius(), banded, height, progress);
         }

@@ -8,10 +8,11 @@
 //! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
 //!   ([`classic`]), whole sequences ([`job`]) and runs of several passes ([`passes`]).
 //! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]) and the HTML report
-//!   ([`report`]).
+//!   ([`report`]); throughput of the data path ([`bench`]).
 
 pub mod align;
 pub mod banding;
+pub mod bench;
 pub mod classic;
 pub mod confidence;
 pub mod denoised_output;

@@ -85,7 +85,7 @@ impl DenoiseRun {
             };
         // the whole run is checked first, also one with nothing left to do: an output that is
         // an input under another spelling of its path is refused, not counted as done
-        job(inputs.clone(), outputs.clone(), true).validate()?;
+        let (_, height) = job(inputs.clone(), outputs.clone(), true).validate()?;
         // a finished run (every output there) does no work, however many passes
         if !self.overwrite && outputs.iter().flatten().all(|o| o.exists()) {
             return Ok(JobReport {
@@ -163,7 +163,8 @@ impl DenoiseRun {
                 done: 0.0,
                 frames,
             });
-            let r = job.run(method, |done, _| {
+            // every input was checked above, and earlier passes' results are radn's own
+            let r = job.run_validated(method, height, |done, _| {
                 progress(PassProgress {
                     pass,
                     passes,

@@ -42,7 +42,21 @@ enum Command {
     Bench(cmd::bench::Args),
 }
 
+/// Restores the default action of SIGPIPE, which the Rust runtime ignores: a `radn` whose
+/// standard output is a pipe that closes (`radn inspect F | head`, `grep -q`, a pager that
+/// quits) then ends quietly as every Unix tool does, instead of panicking on the failed write.
+/// Files are never written through stdout, and outputs are renamed into place only when
+/// complete, so ending there leaves no partial result.
+fn end_quietly_on_broken_pipes() {
+    #[cfg(unix)]
+    // SAFETY: called first thing in main, before any thread exists; SIG_DFL is a valid action.
+    unsafe {
+        libc::signal(libc::SIGPIPE, libc::SIG_DFL);
+    }
+}
+
 fn main() -> std::process::ExitCode {
+    end_quietly_on_broken_pipes();
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => "info",

@@ -1,15 +1,11 @@
 //! `radn bench`: throughput of reading and aligning 5-frame windows on this machine.
 
 use std::path::PathBuf;
-use std::time::Instant;
 
 use anyhow::{anyhow, Result};
-use radn_core::align::AlignParams;
-use radn_core::classic::pipeline::{denoise_window, ClassicParams};
-use radn_core::classic::refine::{refine_motion, RefineParams};
+use radn_core::bench::time_windows;
 use radn_core::frame::Requirements;
 use radn_core::sequence::sequence_files;
-use radn_core::window::WindowReader;
 
 use crate::input::ChannelArgs;
 
@@ -65,56 +61,11 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
-    let mut read_times = Vec::new();
-    let mut align_times = Vec::new();
-    let mut refine_times = Vec::new();
-    let mut classic_times = Vec::new();
     let paths: Vec<PathBuf> = files[..5].iter().map(|(_, p)| p.clone()).collect();
-    let mut size = (0, 0);
-    for _ in 0..a.repeat.max(1) {
-        // a new reader each time, so every repetition decodes the five frames
-        let mut windows = WindowReader::new(&reader, &paths, 2);
-        let t = Instant::now();
-        windows.load(2, 2)?;
-        read_times.push(t.elapsed().as_secs_f64());
-        let t = Instant::now();
-        let w = windows.aligned(2, &AlignParams::default())?;
-        align_times.push(t.elapsed().as_secs_f64());
-        size = (w.centre().color.width(), w.centre().color.height());
-        std::hint::black_box(w);
-        if a.classic {
-            // one frame's refinement: its motion towards both neighbours
-            let c = windows.frame(2);
-            let t = Instant::now();
-            for (other, m) in [
-                (windows.frame(1), &c.motion_prev),
-                (windows.frame(3), &c.motion_next),
-            ] {
-                if let Some(m) = m {
-                    std::hint::black_box(refine_motion(
-                        &c.color,
-                        &other.color,
-                        m,
-                        &RefineParams::default(),
-                    ));
-                }
-            }
-            refine_times.push(t.elapsed().as_secs_f64());
-            let p = ClassicParams {
-                refine: None,
-                ..ClassicParams::default()
-            };
-            let t = Instant::now();
-            std::hint::black_box(denoise_window(&windows.window(2), &p));
-            classic_times.push(t.elapsed().as_secs_f64());
-        }
-    }
+    let t = time_windows(&reader, &paths, a.repeat, a.classic)?;
+    let size = t.size;
     let mp = (size.0 * size.1) as f64 / 1e6;
-    let med = |v: &mut Vec<f64>| {
-        v.sort_by(f64::total_cmp);
-        v[v.len() / 2]
-    };
-    let (r, al) = (med(&mut read_times), med(&mut align_times));
+    let (r, al) = (t.read, t.align);
     println!(
         "frame size {}x{} ({mp:.3} MP), {} threads, median of {}",
         size.0,
@@ -132,8 +83,7 @@ pub fn run(a: Args) -> Result<()> {
         al * 1e3,
         mp / al
     );
-    if a.classic {
-        let (rf, cl) = (med(&mut refine_times), med(&mut classic_times));
+    if let Some((rf, cl)) = t.classic {
         println!("classic refine:   {:8.1} ms   {:7.2} MP/s (TV-L1 towards both neighbours, once per frame)", rf * 1e3, mp / rf);
         println!("classic window:   {:8.1} ms   {:7.2} MP/s (align, temporal average, NLM, guided filter)", cl * 1e3, mp / cl);
         let total = r / 5.0 + rf + cl;

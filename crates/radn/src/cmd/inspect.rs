@@ -16,57 +16,11 @@ pub struct Args {
     pub json: bool,
 }
 
-#[derive(serde::Serialize)]
-struct ChannelStats {
-    name: String,
-    kind: String,
-    min: f32,
-    max: f32,
-    mean: f64,
-    nan: usize,
-    inf: usize,
-}
-
 /// Prints parts, channels and statistics.
 pub fn run(a: Args) -> Result<()> {
     let file = ExrFile::read(&a.file)?;
     let names = file.channel_names();
-    let stats: Vec<ChannelStats> = names
-        .iter()
-        .map(|n| {
-            let v = file.channel_f32(n).expect("listed channel exists");
-            let (mut min, mut max, mut sum, mut nan, mut inf, mut finite) =
-                (f32::INFINITY, f32::NEG_INFINITY, 0f64, 0, 0, 0usize);
-            for &x in &v {
-                if x.is_nan() {
-                    nan += 1;
-                } else if x.is_infinite() {
-                    inf += 1;
-                } else {
-                    min = min.min(x);
-                    max = max.max(x);
-                    sum += x as f64;
-                    finite += 1;
-                }
-            }
-            ChannelStats {
-                name: n.clone(),
-                kind: file
-                    .channel_kind(n)
-                    .expect("listed channel exists")
-                    .to_string(),
-                min,
-                max,
-                mean: if finite > 0 {
-                    sum / finite as f64
-                } else {
-                    f64::NAN
-                },
-                nan,
-                inf,
-            }
-        })
-        .collect();
+    let stats = file.channel_stats();
     let preset = ChannelMapping::detect(&names)
         .map(|m| m.name)
         .unwrap_or_else(|| "none".into());

@@ -7,5 +7,4 @@ pub mod inspect;
 pub mod prepare;
 pub mod pseudoref;
 pub mod train;
-pub mod utilization;
 pub mod warp;
