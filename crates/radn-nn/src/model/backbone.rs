@@ -60,6 +60,20 @@ impl ResNet {
         frames as f64 * per_frame + self.ra.iter().map(|r| r.flops(px)).sum::<f64>()
     }
 
+    /// Every convolution weight by layer name, in forward order.
+    pub fn weights(&self) -> Vec<(String, Tensor<4>)> {
+        let mut v = vec![("input".to_string(), self.input.weight.val())];
+        let mut next_ra = 0;
+        for (i, block) in self.blocks.iter().enumerate() {
+            v.extend(block.weights(&format!("block{}", i + 1)));
+            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i + 1 {
+                v.extend(self.ra[next_ra].named_weights(&format!("ra{}", next_ra + 1)));
+                next_ra += 1;
+            }
+        }
+        v
+    }
+
     /// `[batch · frames, INPUT_CHANNELS, H, W]` → head features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let mut h = relu(self.input.forward(x));
@@ -142,6 +156,21 @@ impl UNet {
             .map(|(k, b)| t * b.flops(px(self.widths.len() - 2 - k)))
             .sum();
         down + up
+    }
+
+    /// Every convolution weight by layer name, in forward order.
+    pub fn weights(&self) -> Vec<(String, Tensor<4>)> {
+        let mut v = Vec::new();
+        for (s, block) in self.down.iter().enumerate() {
+            v.extend(block.weights(&format!("down{s}")));
+            if let Some(ra) = self.ra.get(s) {
+                v.extend(ra.named_weights(&format!("ra{s}")));
+            }
+        }
+        for (k, block) in self.up.iter().enumerate() {
+            v.extend(block.weights(&format!("up{}", self.widths.len() - 2 - k)));
+        }
+        v
     }
 
     /// Input sizes must be divisible by 2^(scales − 1).
@@ -233,6 +262,14 @@ impl FrameNet {
         match self {
             FrameNet::ResNet(n) => n.flops(h, w, frames),
             FrameNet::UNet(n) => n.flops(h, w, frames),
+        }
+    }
+
+    /// Every convolution weight by layer name, in forward order.
+    pub fn weights(&self) -> Vec<(String, Tensor<4>)> {
+        match self {
+            FrameNet::ResNet(n) => n.weights(),
+            FrameNet::UNet(n) => n.weights(),
         }
     }
 

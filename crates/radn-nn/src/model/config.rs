@@ -73,6 +73,12 @@ pub struct NetConfig {
     /// albedo is near zero (emitters, background). `None`: kernels filter colour as rendered.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub demodulate: Option<f32>,
+    /// Initial scale of the kernel head's weights: they are drawn with standard deviation
+    /// `head_init / √(9·c_in)`, so the raw kernel weights first vary by about this much around
+    /// the box filter the biases set. `None`: 1e-3. The head's weights scale every gradient
+    /// that reaches the backbone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub head_init: Option<f32>,
     /// The backbone.
     pub backbone: Backbone,
 }

@@ -44,6 +44,14 @@ impl ResBlock {
     pub fn flops(&self, pixels: usize) -> f64 {
         conv_flops(&self.a, pixels) + conv_flops(&self.b, pixels)
     }
+
+    /// The weights of its two convolutions, named `prefix.a` and `prefix.b`.
+    pub fn weights(&self, prefix: &str) -> Vec<(String, Tensor<4>)> {
+        vec![
+            (format!("{prefix}.a"), self.a.weight.val()),
+            (format!("{prefix}.b"), self.b.weight.val()),
+        ]
+    }
 }
 
 /// Two 3×3 convolutions with ReLUs (the UNet's per-scale block).
@@ -70,5 +78,13 @@ impl DoubleConv {
     /// Forward FLOPs on a map of `pixels` pixels.
     pub fn flops(&self, pixels: usize) -> f64 {
         conv_flops(&self.a, pixels) + conv_flops(&self.b, pixels)
+    }
+
+    /// The weights of its two convolutions, named `prefix.a` and `prefix.b`.
+    pub fn weights(&self, prefix: &str) -> Vec<(String, Tensor<4>)> {
+        vec![
+            (format!("{prefix}.a"), self.a.weight.val()),
+            (format!("{prefix}.b"), self.b.weight.val()),
+        ]
     }
 }

@@ -23,11 +23,14 @@ use crate::model::config::{Arch, NetConfig, INPUT_CHANNELS};
 use crate::model::kernel::{eta, Kernels};
 use crate::model::layers::{conv3, conv_flops};
 
+/// The head's default initial scale ([`NetConfig::head_init`]).
+pub const DEFAULT_HEAD_INIT: f32 = 1e-3;
+
 /// A kernel head whose first kernels are close to a box filter: equal biases and weights so
-/// small that the raw outputs vary by ~1e-3 (well above the default threshold, so η passes
+/// small that the raw outputs vary by ~`scale` (1e-3 by default) (well above the default threshold, so η passes
 /// gradient everywhere), but not zero (a zero head would block all gradient to the backbone).
-fn box_head(cin: usize, taps: usize, bias: f32, device: &Device) -> Conv2d {
-    let std = 1e-3 / ((cin * 9) as f64).sqrt();
+fn box_head(cin: usize, taps: usize, bias: f32, scale: f32, device: &Device) -> Conv2d {
+    let std = scale as f64 / ((cin * 9) as f64).sqrt();
     let mut head = burn::nn::conv::Conv2dConfig::new([cin, taps], [3, 3])
         .with_padding(burn::nn::PaddingConfig2d::Same)
         .with_initializer(Initializer::Normal { mean: 0.0, std })
@@ -105,6 +108,7 @@ impl Denoiser {
     pub fn new(config: NetConfig, device: &Device) -> Self {
         let k2 = config.kernel_size * config.kernel_size;
         let t = config.frames;
+        let scale = config.head_init.unwrap_or(DEFAULT_HEAD_INIT);
         let net = match config.arch {
             Arch::Ra => {
                 let backbone = FrameNet::new(&config.backbone, t, true, device);
@@ -113,6 +117,7 @@ impl Denoiser {
                     backbone.out_channels(),
                     k2,
                     2.0 / config.kernel_taps() as f32,
+                    scale,
                     device,
                 );
                 Network::Ra(RaNet { backbone, head })
@@ -121,10 +126,16 @@ impl Denoiser {
                 let backbone = FrameNet::new(&config.backbone, t, false, device);
                 let c = backbone.out_channels();
                 Network::Tkpcn(TKpcn {
-                    spatial_head: box_head(c, k2, 0.0, device),
+                    spatial_head: box_head(c, k2, 0.0, scale, device),
                     temporal_a: conv3(t * c, c, device),
                     temporal_b: conv3(c, c, device),
-                    temporal_head: box_head(c, t * k2, 2.0 / config.kernel_taps() as f32, device),
+                    temporal_head: box_head(
+                        c,
+                        t * k2,
+                        2.0 / config.kernel_taps() as f32,
+                        scale,
+                        device,
+                    ),
                     backbone,
                 })
             }
@@ -134,6 +145,7 @@ impl Denoiser {
                     backbone.out_channels(),
                     k2,
                     2.0 / config.kernel_taps() as f32,
+                    scale,
                     device,
                 );
                 Network::Spatial(SpatialKpcn { backbone, head })
@@ -158,6 +170,37 @@ impl Denoiser {
         match &self.net {
             Network::Ra(n) => n.backbone.ra_blocks(),
             _ => Vec::new(),
+        }
+    }
+
+    /// Every convolution weight of the network by layer name, in forward order (backbone
+    /// layers prefixed `backbone.`, then the heads): what training reports layer by layer.
+    pub fn layer_weights(&self) -> Vec<(String, Tensor<4>)> {
+        let backbone = |b: &FrameNet| {
+            b.weights()
+                .into_iter()
+                .map(|(n, w)| (format!("backbone.{n}"), w))
+                .collect::<Vec<_>>()
+        };
+        match &self.net {
+            Network::Ra(n) => {
+                let mut v = backbone(&n.backbone);
+                v.push(("head".into(), n.head.weight.val()));
+                v
+            }
+            Network::Spatial(n) => {
+                let mut v = backbone(&n.backbone);
+                v.push(("head".into(), n.head.weight.val()));
+                v
+            }
+            Network::Tkpcn(n) => {
+                let mut v = backbone(&n.backbone);
+                v.push(("spatial_head".into(), n.spatial_head.weight.val()));
+                v.push(("temporal_a".into(), n.temporal_a.weight.val()));
+                v.push(("temporal_b".into(), n.temporal_b.weight.val()));
+                v.push(("temporal_head".into(), n.temporal_head.weight.val()));
+                v
+            }
         }
     }
 

@@ -64,6 +64,16 @@ impl RobustAverage {
         ]
     }
 
+    /// [`RobustAverage::conv_weights`] named `prefix.hidden_self`, `prefix.hidden_avg` and
+    /// `prefix.weight`.
+    pub fn named_weights(&self, prefix: &str) -> Vec<(String, Tensor<4>)> {
+        ["hidden_self", "hidden_avg", "weight"]
+            .iter()
+            .map(|n| format!("{prefix}.{n}"))
+            .zip(self.conv_weights())
+            .collect()
+    }
+
     /// Forward FLOPs for one window (all its frames) of `pixels` pixels per frame: the
     /// predictor's first half once per frame, its second half and weight conv once per step.
     pub fn flops(&self, pixels: usize) -> f64 {

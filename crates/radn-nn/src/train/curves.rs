@@ -1,5 +1,5 @@
 //! Training curves as a PNG (`curves.png` beside `metrics.csv`): loss (training and
-//! validation) and validation PSNR against the step, drawn on an RGB canvas with 8×8 bitmap
+//! validation), validation PSNR and each layer group's update-to-weight ratio against the step, drawn on an RGB canvas with 8×8 bitmap
 //! glyphs, so no font file or system library is needed.
 
 use std::path::Path;
@@ -178,14 +178,57 @@ fn panel(cv: &mut Canvas, ox: i64, oy: i64, w: i64, h: i64, title: &str, series:
 
 /// Renders two panels side by side as PNG bytes.
 pub fn two_panels(left: (&str, &[Series]), right: (&str, &[Series])) -> Vec<u8> {
-    let (w, h) = (1000i64, 420i64);
-    let mut cv = Canvas::new(w as usize, h as usize);
-    panel(&mut cv, 0, 0, w / 2, h, left.0, left.1);
-    panel(&mut cv, w / 2, 0, w / 2, h, right.0, right.1);
+    panels(&[left, right])
+}
+
+/// Renders panels side by side (500 pixels wide each) as PNG bytes.
+pub fn panels(list: &[(&str, &[Series])]) -> Vec<u8> {
+    let (pw, h) = (500i64, 420i64);
+    let mut cv = Canvas::new((pw * list.len() as i64) as usize, h as usize);
+    for (k, (title, series)) in list.iter().enumerate() {
+        panel(&mut cv, k as i64 * pw, 0, pw, h, title, series);
+    }
     cv.png()
 }
 
-/// Reads a run's `metrics.csv` and writes `curves.png` beside it.
+/// The per-layer update ratios of a run's `layers.csv` as one line per layer group: log10 of
+/// the group's mean ratio at each logged step.
+fn update_ratio_series(layers: &Path) -> Vec<Series> {
+    use crate::train::layer_stats::{layer_group, read_update_ratios};
+    let groups = [
+        ("backbone convs", [60, 60, 200]),
+        ("RA blocks", [200, 120, 20]),
+        ("kernel head", [180, 40, 160]),
+    ];
+    let rows = read_update_ratios(layers);
+    groups
+        .iter()
+        .map(|(g, color)| {
+            let mut by_step: std::collections::BTreeMap<usize, (f64, usize)> = Default::default();
+            for (step, layer, r) in &rows {
+                if layer_group(layer) == *g && *r > 0.0 {
+                    let e = by_step.entry(*step).or_default();
+                    e.0 += r;
+                    e.1 += 1;
+                }
+            }
+            Series {
+                name: (*g).into(),
+                color: *color,
+                thick: 2,
+                points: by_step
+                    .into_iter()
+                    .map(|(s, (sum, n))| (s as f64, (sum / n as f64).log10()))
+                    .collect(),
+            }
+        })
+        .filter(|s| !s.points.is_empty())
+        .collect()
+}
+
+/// Reads a run's `metrics.csv` (and its `layers.csv`, when there is one) and writes
+/// `curves.png` beside it: loss, validation PSNR and, with layer statistics, each layer group's
+/// update-to-weight ratio.
 pub fn training_curves(csv: &Path, png_path: &Path) -> Result<()> {
     let err = |detail: String| NnError::Save {
         path: png_path.to_path_buf(),
@@ -233,7 +276,13 @@ pub fn training_curves(csv: &Path, png_path: &Path) -> Result<()> {
         thick: 3,
         points: psnr,
     }];
-    let bytes = two_panels(("loss", &losses), ("validation PSNR (dB)", &psnrs));
+    let ratios = update_ratio_series(&csv.with_file_name("layers.csv"));
+    let mut list: Vec<(&str, &[Series])> =
+        vec![("loss", &losses), ("validation PSNR (dB)", &psnrs)];
+    if !ratios.is_empty() {
+        list.push(("log10 update / weight", &ratios));
+    }
+    let bytes = panels(&list);
     radn_core::output::write_bytes_atomically(png_path, &bytes).map_err(NnError::from)
 }
 

@@ -19,6 +19,7 @@ use crate::model::demod::Demodulation;
 use crate::model::store;
 use crate::model::Denoiser;
 use crate::train::dataset::{SplitMix, Tile, TileDataset};
+use crate::train::layer_stats::{append_csv, gradient_norms, step_stats};
 use crate::train::objective::{objective, sample_pair, LossFn, LossMode, PairRule, PixelLoss};
 use radn_core::output::{write_atomically_with, write_bytes_atomically};
 
@@ -88,6 +89,16 @@ pub struct TrainConfig {
     /// (references, a studio's own shots) rather than by the run's own validation loss.
     #[serde(default = "d_keep_steps")]
     pub keep_steps: bool,
+    /// Log every layer's weight, gradient and update norms to `layers.csv` every this many
+    /// steps (0: never), so a run shows whether it moves every layer.
+    #[serde(default = "d_layer_stats_every")]
+    pub layer_stats_every: usize,
+    /// Adam's ε (added to the root of the second moment). Default 1e-8 (PyTorch's), not
+    /// burn's 1e-5: the Robust Average blocks' gradients are ~1e-7 per weight, below 1e-5,
+    /// where Adam's steps shrink with the gradient — with 1e-5 those blocks moved 8× less per
+    /// step than the rest of the network (measured, docs/training-signal.md).
+    #[serde(default = "d_adam_epsilon")]
+    pub adam_epsilon: f32,
 }
 
 fn d_batch() -> usize {
@@ -116,6 +127,12 @@ fn d_seed() -> u64 {
 }
 fn d_pseudo() -> bool {
     true
+}
+fn d_adam_epsilon() -> f32 {
+    1e-8
+}
+fn d_layer_stats_every() -> usize {
+    10
 }
 fn d_keep_steps() -> bool {
     true
@@ -314,6 +331,7 @@ impl Trainer {
                 });
             }
             let optim = AdamConfig::new()
+                .with_epsilon(config.adam_epsilon)
                 .init()
                 .load(out.join("optimizer.bpk"))
                 .map_err(|e| NnError::Load {
@@ -322,6 +340,8 @@ impl Trainer {
                 })?;
             // steps after the checkpoint are redone: their logged rows would be duplicates
             drop_metrics_after(&out.join("metrics.csv"), state.step)?;
+            // layer rows carry the step they measured, before it was taken
+            drop_rows_from(&out.join("layers.csv"), state.step)?;
             (d, optim, state)
         } else {
             // initial weights drawn right after seeding, all at once (burn initialises lazily)
@@ -336,7 +356,7 @@ impl Trainer {
             };
             (
                 d,
-                AdamConfig::new().init(),
+                AdamConfig::new().with_epsilon(config.adam_epsilon).init(),
                 TrainState {
                     step: 0,
                     best_val: None,
@@ -428,11 +448,22 @@ impl Trainer {
                 "the loss became {value} at step {step}"
             )));
         }
-        let grads = GradientsParams::from_grads(loss.backward(), &self.denoiser.net);
+        let grads = loss.backward();
+        let every = self.config.layer_stats_every;
+        let watched = (every > 0 && step.is_multiple_of(every)).then(|| {
+            let before = self.denoiser.layer_weights();
+            let norms = gradient_norms(&before, &grads);
+            (before, norms)
+        });
+        let grads = GradientsParams::from_grads(grads, &self.denoiser.net);
         // modules hold tensor handles: the clone is cheap
         self.denoiser.net =
             self.optim
                 .step(self.config.lr_at(step), self.denoiser.net.clone(), grads);
+        if let Some((before, norms)) = watched {
+            let stats = step_stats(&before, &norms, &self.denoiser.layer_weights());
+            append_csv(&self.out.join("layers.csv"), step, &stats)?;
+        }
         self.state.step += 1;
         Ok(value)
     }
@@ -574,6 +605,11 @@ pub struct Progress {
 /// Removes the rows logged after `step` from a run's metrics CSV (left by a run killed between
 /// checkpoints), so a resumed run's curves have one row per step and kind.
 fn drop_metrics_after(path: &Path, step: usize) -> Result<()> {
+    drop_rows_from(path, step + 1)
+}
+
+/// Removes the rows of a run's CSV whose first column (a step) is `first` or later.
+fn drop_rows_from(path: &Path, first: usize) -> Result<()> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(()); // no metrics yet
     };
@@ -585,7 +621,7 @@ fn drop_metrics_after(path: &Path, step: usize) -> Result<()> {
                 || l.split(',')
                     .next()
                     .and_then(|s| s.parse::<usize>().ok())
-                    .is_none_or(|s| s <= step)
+                    .is_none_or(|s| s < first)
         })
         .map(|(_, l)| format!("{l}\n"))
         .collect();
