@@ -19,6 +19,19 @@ pub fn conv_flops(conv: &Conv2d, pixels: usize) -> f64 {
     2.0 * conv.weight.lazy_shape().num_elements() as f64 * pixels as f64
 }
 
+/// FLOPs of a block's two convolutions `a` and `b` on a map of `pixels` pixels.
+fn pair_flops(a: &Conv2d, b: &Conv2d, pixels: usize) -> f64 {
+    conv_flops(a, pixels) + conv_flops(b, pixels)
+}
+
+/// A block's two convolution weights, named `prefix.a` and `prefix.b`.
+fn pair_weights(prefix: &str, a: &Conv2d, b: &Conv2d) -> Vec<(String, Tensor<4>)> {
+    vec![
+        (format!("{prefix}.a"), a.weight.val()),
+        (format!("{prefix}.b"), b.weight.val()),
+    ]
+}
+
 /// A residual block: `x + conv(relu(conv(x)))`.
 #[derive(Module, Debug)]
 pub struct ResBlock {
@@ -42,15 +55,12 @@ impl ResBlock {
 
     /// Forward FLOPs on a map of `pixels` pixels.
     pub fn flops(&self, pixels: usize) -> f64 {
-        conv_flops(&self.a, pixels) + conv_flops(&self.b, pixels)
+        pair_flops(&self.a, &self.b, pixels)
     }
 
     /// The weights of its two convolutions, named `prefix.a` and `prefix.b`.
     pub fn weights(&self, prefix: &str) -> Vec<(String, Tensor<4>)> {
-        vec![
-            (format!("{prefix}.a"), self.a.weight.val()),
-            (format!("{prefix}.b"), self.b.weight.val()),
-        ]
+        pair_weights(prefix, &self.a, &self.b)
     }
 }
 
@@ -77,14 +87,11 @@ impl DoubleConv {
 
     /// Forward FLOPs on a map of `pixels` pixels.
     pub fn flops(&self, pixels: usize) -> f64 {
-        conv_flops(&self.a, pixels) + conv_flops(&self.b, pixels)
+        pair_flops(&self.a, &self.b, pixels)
     }
 
     /// The weights of its two convolutions, named `prefix.a` and `prefix.b`.
     pub fn weights(&self, prefix: &str) -> Vec<(String, Tensor<4>)> {
-        vec![
-            (format!("{prefix}.a"), self.a.weight.val()),
-            (format!("{prefix}.b"), self.b.weight.val()),
-        ]
+        pair_weights(prefix, &self.a, &self.b)
     }
 }

@@ -26,9 +26,10 @@ use crate::model::layers::{conv3, conv_flops};
 /// The head's default initial scale ([`NetConfig::head_init`]).
 pub const DEFAULT_HEAD_INIT: f32 = 1e-3;
 
-/// A kernel head whose first kernels are close to a box filter: equal biases and weights so
-/// small that the raw outputs vary by ~`scale` (1e-3 by default) (well above the default threshold, so η passes
-/// gradient everywhere), but not zero (a zero head would block all gradient to the backbone).
+/// A kernel head whose first kernels are close to a box filter: equal biases (`bias`, above
+/// the default threshold, so η passes gradient everywhere) and weights so small that the raw
+/// outputs vary by about `scale` (1e-3 by default), but not zero (a zero head would block all
+/// gradient to the backbone).
 fn box_head(cin: usize, taps: usize, bias: f32, scale: f32, device: &Device) -> Conv2d {
     let std = scale as f64 / ((cin * 9) as f64).sqrt();
     let mut head = burn::nn::conv::Conv2dConfig::new([cin, taps], [3, 3])
@@ -109,17 +110,14 @@ impl Denoiser {
         let k2 = config.kernel_size * config.kernel_size;
         let t = config.frames;
         let scale = config.head_init.unwrap_or(DEFAULT_HEAD_INIT);
+        // raw weights all 2/K: above the default threshold 1/(2K), so η gives a box
+        let box_bias = 2.0 / config.kernel_taps() as f32;
+        let kernel_head =
+            |backbone: &FrameNet| box_head(backbone.out_channels(), k2, box_bias, scale, device);
         let net = match config.arch {
             Arch::Ra => {
                 let backbone = FrameNet::new(&config.backbone, t, true, device);
-                // raw weights all 2/K: above the default threshold 1/(2K), so η gives a box
-                let head = box_head(
-                    backbone.out_channels(),
-                    k2,
-                    2.0 / config.kernel_taps() as f32,
-                    scale,
-                    device,
-                );
+                let head = kernel_head(&backbone);
                 Network::Ra(RaNet { backbone, head })
             }
             Arch::Tkpcn => {
@@ -129,25 +127,13 @@ impl Denoiser {
                     spatial_head: box_head(c, k2, 0.0, scale, device),
                     temporal_a: conv3(t * c, c, device),
                     temporal_b: conv3(c, c, device),
-                    temporal_head: box_head(
-                        c,
-                        t * k2,
-                        2.0 / config.kernel_taps() as f32,
-                        scale,
-                        device,
-                    ),
+                    temporal_head: box_head(c, t * k2, box_bias, scale, device),
                     backbone,
                 })
             }
             Arch::Spatial => {
                 let backbone = FrameNet::new(&config.backbone, t, false, device);
-                let head = box_head(
-                    backbone.out_channels(),
-                    k2,
-                    2.0 / config.kernel_taps() as f32,
-                    scale,
-                    device,
-                );
+                let head = kernel_head(&backbone);
                 Network::Spatial(SpatialKpcn { backbone, head })
             }
         };
