@@ -2,6 +2,8 @@
 
     python -m radn_datagen scene   --seed 7 --out data/sample --frames 1-9 --res 256x144 --spp 32 --reference-spp 1024
     python -m radn_datagen dataset --split train --scenes 40 --frames 1-16 --res 256x256 --out data/train
+    python -m radn_datagen dataset --split detail-train --scenes 90 --spp 32,64,128,256 --teacher-spp 1x ...
+    python -m radn_datagen oidn IN_DIR OUT_DIR      # OIDN 2.5 on every frame of a folder
 """
 import argparse
 import os
@@ -10,9 +12,15 @@ import time
 
 from . import LEVELS
 from . import render, scene as scenes
+from .levels import extra_level, level_spp, per_scene_choice
 
-# Disjoint seed ranges per split, so no scene is ever in two splits.
-SPLIT_BASE = {"train": 1_000_000, "val": 2_000_000, "test": 3_000_000}
+# Disjoint seed ranges per split, so no scene is ever in two splits. The detail splits hold
+# scenes with fine detail (`detail.py`); detail-test is held aside: never used for training or
+# model selection.
+SPLIT_BASE = {"train": 1_000_000, "val": 2_000_000, "test": 3_000_000,
+              "detail-test": 4_000_000, "detail-train": 5_000_000, "detail-val": 6_000_000}
+TEACHER = "teacher"
+TEACHER_OIDN = "oidn"
 
 
 def parse_range(text):
@@ -25,21 +33,54 @@ def parse_res(text):
     return (int(w), int(h))
 
 
+def parse_spp_list(text):
+    return [int(v) for v in str(text).split(",") if v.strip()]
+
+
+def teacher_spp(text, high):
+    """`--teacher-spp`: a count, or `Kx` for K times the scene's highest input level."""
+    text = str(text).strip().lower()
+    if text.endswith("x"):
+        return int(round(float(text[:-1]) * high))
+    return int(text)
+
+
+def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
+    """The scene's base sample count and resolution (drawn per scene from the choices)."""
+    spp = per_scene_choice(seed, "spp", spp_choices)
+    scale = per_scene_choice(seed, "resolution", res_scales)
+    res = (max(64, int(round(res[0] * scale / 8)) * 8), max(64, int(round(res[1] * scale / 8)) * 8))
+    extra = sorted({n for n in extra_spp if n not in level_spp(spp).values()})
+    return spp, res, extra
+
+
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
-                 calibration=False, levels=LEVELS, log=print):
+                 calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None):
+    """Renders one scene: the input levels (`levels` and `extra_spp`), the optional reference,
+    and the optional teacher render (`teacher` spp) with its OIDN pseudo-reference."""
     import bpy  # noqa: F401  (imported here so --help works without bpy)
 
     t0 = time.time()
     if calibration:
         desc = scenes.build_calibration(frames=frames, resolution=res)
     else:
-        desc = scenes.build(seed, frames=frames, resolution=res, layout=layout)
+        desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail)
     sc = scenes.bpy.context.scene
     render.configure(sc, exr_half=half, threads=threads)
     for lv in levels:
         if lv not in LEVELS:
             raise SystemExit(f"unknown level '{lv}'; known: {', '.join(LEVELS)}")
-    done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels, log=log)
+    extra = {extra_level(n): n for n in extra_spp}
+    if teacher:
+        extra[TEACHER] = teacher
+    done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels,
+                                extra=extra, log=log)
+    if teacher:
+        from .oidn import denoise_folder
+
+        denoise_folder(os.path.join(out, TEACHER), os.path.join(out, TEACHER_OIDN), log=log)
+        done[TEACHER_OIDN] = {"spp": teacher, "denoiser": "Intel Open Image Denoise 2.5 (pyoidn), HDR, "
+                              "albedo + normal prefiltered, quality high", "source": TEACHER}
     info = {
         "seed": seed,
         "frames": list(frames),
@@ -51,6 +92,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         "renderer": f"Blender {scenes.bpy.app.version_string} Cycles (CPU)",
         "passes": ["Combined", "Denoising Albedo", "Denoising Normal", "Denoising Depth", "Vector", "Depth", "Normal"],
         "render_seconds_this_run": round(time.time() - t0, 1),
+        "detail": bool(detail),
         "scene": desc,
     }
     return render.write_manifest(out, info)
@@ -63,7 +105,17 @@ def main(argv=None):
     common = argparse.ArgumentParser(add_help=False)
     common.add_argument("--frames", default="1-9", help="frame range, e.g. 1-16")
     common.add_argument("--res", default="256x256", help="resolution WxH")
-    common.add_argument("--spp", type=int, default=32, help="n: samples of the 'high' level")
+    common.add_argument("--spp", default="32",
+                        help="n: samples of the 'high' level; a list (32,64,128) draws one per scene")
+    common.add_argument("--extra-spp", default="",
+                        help="further input levels, e.g. 64,128 (folders spp0064, spp0128)")
+    common.add_argument("--teacher-spp", default="0",
+                        help="also render an independent teacher level at this many spp (or Kx: K times "
+                             "n) and denoise it with OIDN into oidn/ (the teacher pseudo-reference)")
+    common.add_argument("--res-scales", default="1",
+                        help="resolution scales drawn per scene, e.g. 1,0.75,0.5 (detail 1-2 px wide)")
+    common.add_argument("--detail", action="store_true",
+                        help="add fine detail (implied by the detail-* splits)")
     common.add_argument("--reference-spp", type=int, default=0, help="also render a reference at this many spp")
     common.add_argument("--reference-frames", default=None, help="frame range of the reference (default: all)")
     common.add_argument("--half", action="store_true", help="write half-float PIZ EXRs (smaller)")
@@ -74,6 +126,9 @@ def main(argv=None):
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--out", required=True, help="the scene's folder")
     s.add_argument("--calibration", action="store_true", help="the known-motion calibration scene")
+    o = sub.add_parser("oidn", help="denoise every frame of a folder with Intel Open Image Denoise 2.5")
+    o.add_argument("src")
+    o.add_argument("dst")
     t = sub.add_parser("trim", help="copy a scene keeping only the passes radn reads (for the shipped sample)")
     t.add_argument("src")
     t.add_argument("dst")
@@ -88,21 +143,39 @@ def main(argv=None):
         crop = tuple(int(v) for v in a.crop.split(",")) if a.crop else None
         print(f"wrote {trim_scene(a.src, a.dst, crop)}")
         return 0
+    if a.cmd == "oidn":
+        from .oidn import OidnInputError, denoise_folder
+
+        try:
+            n = denoise_folder(a.src, a.dst, skip_existing=False, log=lambda _: None)
+        except OidnInputError as e:
+            raise SystemExit(str(e))
+        print(f"wrote {n} frames to {a.dst}")
+        return 0
     frames = parse_range(a.frames)
     res = parse_res(a.res)
     ref_frames = parse_range(a.reference_frames) if a.reference_frames else None
+    spp_choices = parse_spp_list(a.spp)
+    res_scales = [float(v) for v in a.res_scales.split(",")]
+    extra_spp = parse_spp_list(a.extra_spp)
+    levels = tuple(a.levels.split(","))
+
+    def one(seed, out, detail, calibration=False):
+        spp, scene_res, extra = scene_settings(seed, spp_choices, res, res_scales, extra_spp)
+        teacher = teacher_spp(a.teacher_spp, spp) or None
+        return render_scene(seed, out, frames, scene_res, spp, a.reference_spp, ref_frames, a.half, a.threads,
+                            a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher)
+
     if a.cmd == "scene":
-        m = render_scene(a.seed, a.out, frames, res, a.spp, a.reference_spp, ref_frames, a.half, a.threads,
-                         a.layout, a.calibration, levels=tuple(a.levels.split(",")))
-        print(f"wrote {m}")
+        print(f"wrote {one(a.seed, a.out, a.detail, a.calibration)}")
         return 0
     t0 = time.time()
+    detail = a.detail or a.split.startswith("detail")
     for i in range(a.scenes):
         seed = SPLIT_BASE[a.split] + i
         out = os.path.join(a.out, f"scene_{seed}")
         print(f"scene {i + 1}/{a.scenes} (seed {seed}) -> {out}   elapsed {time.time() - t0:.0f} s", flush=True)
-        render_scene(seed, out, frames, res, a.spp, a.reference_spp, ref_frames, a.half, a.threads, a.layout,
-                     levels=tuple(a.levels.split(",")))
+        one(seed, out, detail)
     return 0
 
 

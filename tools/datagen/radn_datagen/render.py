@@ -61,12 +61,16 @@ def render_frame(scene, path, spp, seed, frame):
 
 
 def render_levels(scene, out_dir, scene_seed, frames, spp, reference_spp=0, reference_frames=None,
-                  levels=LEVELS, log=print):
-    """Renders every frame at every level (and the reference frames), skipping existing files."""
-    spps = level_spp(spp)
-    jobs = [(lv, spps[lv], f) for lv in levels for f in range(frames[0], frames[1] + 1)]
+                  levels=LEVELS, extra=None, log=print):
+    """Renders every frame at every level (and the reference frames), skipping existing files.
+    `extra` maps further level names to their sample counts (higher input levels, the teacher
+    render); each is an independent render with its own sampling seed."""
+    spps = {lv: n for lv, n in level_spp(spp).items() if lv in levels}
+    spps.update(extra or {})
+    jobs = [(lv, n, f) for lv, n in spps.items() for f in range(frames[0], frames[1] + 1)]
     if reference_spp:
         rf = reference_frames or frames
+        spps[REFERENCE] = reference_spp
         jobs += [(REFERENCE, reference_spp, f) for f in range(rf[0], rf[1] + 1)]
     timings = {}
     done = 0
@@ -79,8 +83,7 @@ def render_levels(scene, out_dir, scene_seed, frames, spp, reference_spp=0, refe
         timings.setdefault(level, []).append(secs)
         log(f"[{done}/{len(jobs)}] {path}: {n} spp in {secs:.1f} s")
     return {lv: {"spp": n, "seconds_per_frame": (sum(t) / len(t) if (t := timings.get(lv)) else None)}
-            for lv, n in list(spps.items()) + ([(REFERENCE, reference_spp)] if reference_spp else [])
-            if lv in levels or lv == REFERENCE}
+            for lv, n in spps.items()}
 
 
 def write_manifest(out_dir, info):

@@ -233,8 +233,10 @@ def _layout(rng, scene, outdoor):
     return desc
 
 
-def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, layout=None):
-    """Builds scene `seed` in the current Blender session and returns its description."""
+def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, layout=None, detail=False):
+    """Builds scene `seed` in the current Blender session and returns its description. With
+    `detail`, also the fine detail of `detail.add_detail` (its own random stream: the rest of
+    the scene is the same with or without it)."""
     rng = random.Random(seed)
     scene = reset()
     scene.frame_start, scene.frame_end = frames
@@ -314,6 +316,10 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
     _key_every_frame(cam, "location", frames, cam_pose)
     _key_every_frame(cam, "rotation_euler", frames, cam_rot)
     desc["camera"] = {"move": move, "lens_mm": cam.data.lens, "speed": speed}
+    if detail:
+        from .detail import add_detail
+
+        desc["detail"] = add_detail(seed, az, desc.get("room_size"), frames, _key_every_frame)
     return desc
 
 

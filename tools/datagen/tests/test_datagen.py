@@ -20,7 +20,7 @@ PASSES = ["Combined", "Denoising Albedo", "Denoising Normal", "Vector", "Depth",
 
 
 def channels(path):
-    with OpenEXR.File(path, separate_channels=True) as f:
+    with OpenEXR.File(str(path), separate_channels=True) as f:
         return {n: c.pixels.astype(np.float64) for n, c in f.channels().items()}
 
 
@@ -106,3 +106,52 @@ def test_shipped_sample_matches_its_manifest():
                 assert e.header()["cycles.ViewLayer.samples"] == str(info["spp"]), p
     total = sum(os.path.getsize(os.path.join(d, f)) for d, _, fs in os.walk(root) for f in fs)
     assert total < 9 * 1024 * 1024, total
+
+
+@pytest.fixture(scope="module")
+def detail(tmp_path_factory):
+    """A detail scene (wall, fence, text, polished objects) at 4 spp, with an 8-spp teacher
+    render denoised by OIDN and a 256-spp reference; and the same seed without detail."""
+    pytest.importorskip("pyoidn")
+    out = tmp_path_factory.mktemp("detail")
+    base = [sys.executable, "-m", "radn_datagen", "scene", "--seed", "4000001", "--frames", "1-1",
+            "--res", "96x64", "--spp", "4", "--levels", "low"]
+    subprocess.run(base + ["--detail", "--out", str(out / "d"), "--teacher-spp", "8", "--reference-spp", "256",
+                           "--extra-spp", "16"], cwd=DATAGEN, check=True, capture_output=True)
+    subprocess.run(base + ["--out", str(out / "plain")], cwd=DATAGEN, check=True, capture_output=True)
+    return out
+
+
+def test_detail_scene_has_its_detail_and_an_oidn_teacher_closer_to_the_reference(detail):
+    d = detail / "d"
+    m = json.load(open(d / "manifest.json"))
+    assert m["detail"] is True and m["scene"]["detail"]["wall"]["texture"]
+    assert m["levels"]["teacher"]["spp"] == 8 and m["levels"]["spp0016"]["spp"] == 16
+    assert "Open Image Denoise" in m["levels"]["oidn"]["denoiser"]
+    ref = rgb(channels(d / "ref" / "frame_0001.exr"))
+    teacher = rgb(channels(d / "teacher" / "frame_0001.exr"))
+    low = rgb(channels(d / "low" / "frame_0001.exr"))
+    oidn_ch = channels(d / "oidn" / "frame_0001.exr")
+    # OIDN's frame keeps every pass of its input, only the beauty changes
+    assert set(oidn_ch) == set(channels(d / "teacher" / "frame_0001.exr"))
+    mse = {k: float(np.mean((np.minimum(v, 4.0) - np.minimum(ref, 4.0)) ** 2))
+           for k, v in (("teacher", teacher), ("oidn", rgb(oidn_ch)))}
+    assert mse["oidn"] < 0.5 * mse["teacher"], mse
+    # the teacher is its own render: not the input level's noise
+    assert abs(np.corrcoef((teacher - ref).ravel(), (low - ref).ravel())[0, 1]) < 0.5
+    # detail adds to the scene: the same seed without it renders differently
+    plain = rgb(channels(detail / "plain" / "low" / "frame_0001.exr"))
+    assert np.mean(np.abs(plain - low)) > 0.01
+
+
+def test_oidn_names_the_file_and_the_missing_channel(tmp_path):
+    pytest.importorskip("pyoidn")
+    src = tmp_path / "in"
+    src.mkdir()
+    px = np.ones((4, 4), np.float32)
+    OpenEXR.File({}, {f"ViewLayer.Combined.{c}": px for c in "RGB"}).write(str(src / "frame_0001.exr"))
+    r = subprocess.run([sys.executable, "-m", "radn_datagen", "oidn", str(src), str(tmp_path / "out")],
+                       cwd=DATAGEN, capture_output=True, text=True)
+    assert r.returncode != 0
+    assert "frame_0001.exr" in r.stderr and "Denoising Albedo" in r.stderr, r.stderr
+    assert not (tmp_path / "out" / "frame_0001.exr").exists()
