@@ -16,6 +16,7 @@ fn tiles(out: &Path, seed: u64, per_window: usize) {
         tiles_per_window: per_window,
         seed,
         frames: 5,
+        pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
     };
     prepare(&sample(), out, &opts, |_, _| {}).unwrap();
 }

@@ -8,3 +8,4 @@ pub mod pipeline;
 pub mod refine;
 pub mod temporal;
 pub mod tvl1;
+pub mod wiener;

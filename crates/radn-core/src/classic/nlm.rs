@@ -52,8 +52,18 @@ pub struct NlmGuide<'a> {
     pub depth: Option<&'a Plane>,
 }
 
+/// The filtered signals and how much the filter averaged at each pixel.
+pub struct NlmOutput {
+    /// Every signal filtered with the same weights, in the input order.
+    pub signals: Vec<Plane>,
+    /// Per pixel, `Σw² / (Σw)²` of the normalised weights (1 channel): the factor by which
+    /// the filter divides the variance of independent per-pixel noise (1 where it kept the
+    /// pixel, 1/N for a plain mean of N pixels).
+    pub variance_ratio: Plane,
+}
+
 /// Filters every signal with the same NLM weights computed from `guide`.
-pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
+pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> NlmOutput {
     let (w, h) = (guide.color.width(), guide.color.height());
     let n = w * h;
     let r = p.search_radius as isize;
@@ -64,6 +74,7 @@ pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
         .map(|s| Plane::zeros(w, h, s.channels()))
         .collect();
     let mut den = vec![0f32; n];
+    let mut den2 = vec![0f32; n];
     let mut dist = vec![0f32; n];
     let mut tmp = vec![0f32; n];
     let mut patch = vec![0f32; n];
@@ -99,15 +110,17 @@ pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
                 qx >= 0 && qy >= 0 && qx < w as isize && qy < h as isize
             };
             den.par_chunks_mut(w)
+                .zip(den2.par_chunks_mut(w))
                 .zip(patch.par_chunks_mut(w))
                 .enumerate()
-                .for_each(|(y, (drow, prow))| {
+                .for_each(|(y, ((drow, d2row), prow))| {
                     for x in 0..w {
                         // min(colour weight, feature weight) = exp(−max(colour energy, feature energy))
                         let e = (prow[x] / patch_area).max(0.0).max(wf[y * w + x]);
                         let wt = if inside(x, y) { (-e).exp() } else { 0.0 };
                         prow[x] = wt; // reuse as the weight buffer
                         drow[x] += wt;
+                        d2row[x] += wt * wt;
                     }
                 });
             for (s, acc) in signals.iter().zip(num.iter_mut()) {
@@ -137,7 +150,14 @@ pub fn nlm(guide: &NlmGuide, signals: &[&Plane], p: &NlmParams) -> Vec<Plane> {
             }
         });
     }
-    num
+    let variance_ratio = Plane::from_fn(w, h, 1, |x, y, _| {
+        let i = y * w + x;
+        den2[i] / (den[i] * den[i]).max(1e-24)
+    });
+    NlmOutput {
+        signals: num,
+        variance_ratio,
+    }
 }
 
 /// The feature term's exponent: the feature weight is `exp(−energy)`.
@@ -193,13 +213,23 @@ mod tests {
             normal: None,
             depth: None,
         };
-        let out = nlm(&guide, &[&img], &NlmParams::default()).remove(0);
+        let filtered = nlm(&guide, &[&img], &NlmParams::default());
+        let ratio = filtered.variance_ratio.data().iter().sum::<f32>() / (w * h) as f32;
+        let out = filtered.signals.into_iter().next().unwrap();
         let mean: f32 = out.data().iter().sum::<f32>() / out.data().len() as f32;
         let var_out: f32 =
             out.data().iter().map(|v| (v - mean).powi(2)).sum::<f32>() / out.data().len() as f32;
         assert!((mean - 0.5).abs() < 0.01);
         // a 19×19 search window could at best divide the variance by 361; demand at least 20×
         assert!(var_out < var_in / 20.0, "variance {var_in} -> {var_out}");
+        // the reported variance ratio is what the filter did to the noise (within 2x: the
+        // patch weights correlate neighbouring outputs)
+        assert!(ratio < 1.0 / 20.0, "variance ratio {ratio}");
+        assert!(
+            var_out / var_in < 2.0 * ratio && ratio < 4.0 * var_out / var_in,
+            "{ratio} vs {}",
+            var_out / var_in
+        );
     }
 
     #[test]
@@ -218,7 +248,7 @@ mod tests {
             depth: None,
         };
         let aov = img.clone();
-        let out = nlm(&guide, &[&img, &aov], &NlmParams::default());
+        let out = nlm(&guide, &[&img, &aov], &NlmParams::default()).signals;
         for y in 0..h {
             assert!(
                 (out[0].get(19, y, 0) - 0.2).abs() < 0.03

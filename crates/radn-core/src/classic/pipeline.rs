@@ -9,6 +9,7 @@ use super::guided::{guided_filter, GuidedParams};
 use super::nlm::{nlm, NlmGuide, NlmParams};
 use super::refine::{refine_motion, RefineParams};
 use super::temporal::{apply_weights, robust_weights, temporal_variance};
+use super::wiener::{blend, blend_weight, BlendParams};
 use crate::align::{align_window, AlignParams};
 use crate::confidence::box3;
 use crate::frame::Frame;
@@ -27,6 +28,9 @@ pub struct ClassicParams {
     pub nlm: NlmParams,
     /// Guided filter (None: skip).
     pub guided: Option<GuidedParams>,
+    /// Blend of the guided filter's output with its input by the remaining noise (None: take
+    /// the guided filter's output everywhere, whatever the noise level).
+    pub guided_blend: Option<BlendParams>,
     /// Filter colour divided by albedo (texture detail is then kept by remodulation).
     pub demodulate: bool,
 }
@@ -38,6 +42,7 @@ impl Default for ClassicParams {
             refine: Some(RefineParams::default()),
             nlm: NlmParams::default(),
             guided: Some(GuidedParams::default()),
+            guided_blend: Some(BlendParams::default()),
             demodulate: true,
         }
     }
@@ -185,13 +190,30 @@ pub fn denoise_window(window: &[Option<&Frame>], p: &ClassicParams) -> ClassicRe
     if let Some(a) = &t_alpha {
         signals.push(a);
     }
-    let mut filtered = nlm(&guide, &signals, &p.nlm);
+    let nlm_out = nlm(&guide, &signals, &p.nlm);
+    let mut filtered = nlm_out.signals;
     if let (Some(gp), Some(feat)) = (&p.guided, features(albedo_f.as_ref(), normal_f.as_ref())) {
         // alpha keeps only the convex stages (temporal average, NLM), which cannot leave its
         // range; the guided filter is a local regression and may overshoot at edges
         let colour_and_aovs = 1 + d_aovs.len();
         let refs: Vec<&Plane> = filtered[..colour_and_aovs].iter().collect();
-        let guided = guided_filter(&feat, &refs, gp);
+        let mut guided = guided_filter(&feat, &refs, gp);
+        if let Some(bp) = &p.guided_blend {
+            // the noise left after NLM: its input's variance times what NLM divided it by
+            let mut left = d_var.clone();
+            let n = left.pixels();
+            left.data_mut().par_chunks_mut(n).for_each(|ch| {
+                ch.iter_mut()
+                    .zip(nlm_out.variance_ratio.data())
+                    .for_each(|(v, r)| *v *= r)
+            });
+            let weight = blend_weight(&filtered[0], &guided[0], &left, bp);
+            guided = guided
+                .iter()
+                .zip(&filtered)
+                .map(|(g, f)| blend(f, g, &weight))
+                .collect();
+        }
         filtered.splice(..colour_and_aovs, guided);
     }
     let remod = |mut x: Plane| {

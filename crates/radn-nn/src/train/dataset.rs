@@ -40,6 +40,17 @@ pub struct PrepareOptions {
     pub seed: u64,
     /// Frames in a window.
     pub frames: usize,
+    /// The level folder whose frames are the pseudo-reference target: `pseudo` (the classic
+    /// denoiser, `radn pseudoref`) or `oidn` (the teacher render denoised by OIDN, datagen's
+    /// `--teacher-spp`).
+    pub pseudo_level: String,
+}
+
+/// The default pseudo-reference level (made by `radn pseudoref`).
+pub const DEFAULT_PSEUDO_LEVEL: &str = "pseudo";
+
+fn default_pseudo_level() -> String {
+    DEFAULT_PSEUDO_LEVEL.to_string()
 }
 
 /// The dataset's description, stored as `manifest.json`.
@@ -69,6 +80,9 @@ pub struct Manifest {
     pub scenes: Vec<String>,
     /// Records with a pseudo-reference target.
     pub with_pseudo: usize,
+    /// The level folder the pseudo-references were read from (`pseudo` or `oidn`).
+    #[serde(default = "default_pseudo_level")]
+    pub pseudo_level: String,
 }
 
 /// One training tile.
@@ -146,7 +160,7 @@ pub fn prepare(
                 ))
             })?);
         }
-        let pseudo = level_files("pseudo")?;
+        let pseudo = level_files(&opts.pseudo_level)?;
         let mut inputs: Vec<WindowReader> = input_files
             .iter()
             .map(|f| WindowReader::new(&input_reader, f, opts.frames / 2))
@@ -213,6 +227,7 @@ pub fn prepare(
             })
             .collect(),
         with_pseudo,
+        pseudo_level: opts.pseudo_level.clone(),
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;

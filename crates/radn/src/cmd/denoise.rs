@@ -113,6 +113,17 @@ pub struct ClassicArgs {
     /// Classic: skip the guided filter.
     #[arg(long)]
     pub no_guided: bool,
+    /// Classic: take the guided filter's output everywhere, instead of only where the
+    /// remaining noise explains what it changes (blurs clean inputs).
+    #[arg(long)]
+    pub fixed_guided: bool,
+    /// Classic: how many noise variances of change the guided filter may make before its
+    /// input is kept instead (1 = the Wiener gain; larger smooths more; chosen on the detail validation scenes).
+    #[arg(long, default_value_t = 4.0)]
+    pub guided_noise_scale: f32,
+    /// Classic: radius of the box the guided filter's change and the noise are compared over.
+    #[arg(long, default_value_t = 3)]
+    pub guided_blend_radius: usize,
     /// Classic: filter the beauty itself instead of beauty / albedo.
     #[arg(long)]
     pub no_demodulate: bool,
@@ -130,6 +141,12 @@ impl ClassicArgs {
         }
         if self.no_guided {
             p.guided = None;
+        }
+        if self.fixed_guided {
+            p.guided_blend = None;
+        } else if let Some(b) = p.guided_blend.as_mut() {
+            b.noise_scale = self.guided_noise_scale;
+            b.radius = self.guided_blend_radius;
         }
         p.demodulate = !self.no_demodulate;
         ClassicDenoiser {

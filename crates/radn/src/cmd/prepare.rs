@@ -8,7 +8,8 @@ use radn_nn::train::dataset::{prepare, PrepareOptions};
 /// Arguments of `radn prepare`.
 #[derive(clap::Args)]
 pub struct Args {
-    /// A rendered split (scenes in the datagen layout, with `pseudo/` levels from `radn pseudoref`).
+    /// A rendered split (scenes in the datagen layout; pseudo-references in `pseudo/` from
+    /// `radn pseudoref`, or in `oidn/` from datagen's teacher).
     #[arg(long)]
     pub data: PathBuf,
     /// Output folder for the shards and manifest.
@@ -23,6 +24,10 @@ pub struct Args {
     /// Seed of the tile positions (the same seed gives the same dataset).
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
+    /// The level folder of the pseudo-reference targets: `pseudo` (classic, `radn pseudoref`)
+    /// or `oidn` (the datagen teacher render denoised by Intel Open Image Denoise).
+    #[arg(long, default_value = radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL)]
+    pub pseudo: String,
 }
 
 /// Cuts the tiles.
@@ -34,18 +39,20 @@ pub fn run(a: Args) -> Result<()> {
         tiles_per_window: a.tiles_per_window,
         seed: a.seed,
         frames: 5,
+        pseudo_level: a.pseudo.clone(),
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {
         pb.set_position(done as u64)
     })?;
     pb.finish_and_clear();
     println!(
-        "{} tiles of {}x{} from {} scenes ({} with a pseudo-reference) -> {}",
+        "{} tiles of {}x{} from {} scenes ({} with a pseudo-reference from '{}/') -> {}",
         m.records,
         m.tile,
         m.tile,
         m.scenes.len(),
         m.with_pseudo,
+        m.pseudo_level,
         a.out.display()
     );
     Ok(())

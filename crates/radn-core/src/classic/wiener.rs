@@ -1,0 +1,177 @@
+//! A noise-matched blend of two stages of the classic denoiser: where a smoothing stage changes
+//! its input by no more than the input's remaining noise explains, its output is taken; where it
+//! changes it by more (it removed detail: a reflection, a shadow edge, texture the guide does not
+//! describe), the input is kept. So the classic denoiser's strength follows the noise: a 4-spp
+//! frame is smoothed, a 128-spp frame only refined (issue 18: it must never end below its input).
+//!
+//! Per pixel, with `v` the input's noise variance and `d²` the local mean squared change the
+//! smoothing made, the smoothing's bias is estimated as `b² = max(0, d² − v)` and the weight of
+//! the smoothed output is the Wiener gain `v / (v + b²)`. The weight is computed from the beauty
+//! alone and applied to every signal, so each signal still receives one linear operator (AOVs
+//! that sum to the beauty still do, alpha stays in range).
+
+use rayon::prelude::*;
+
+use crate::image_ops::box_mean;
+use crate::plane::Plane;
+
+/// Options of the blend.
+#[derive(Clone, Copy, Debug)]
+pub struct BlendParams {
+    /// Radius of the box over which the squared change is averaged (the guided filter's
+    /// window: its changes are judged at the scale it works at).
+    pub radius: usize,
+    /// How many noise variances of change are still taken as noise (1 is the Wiener gain;
+    /// larger trusts the smoothing more). Above 1 because the noise variance comes from a few
+    /// frames' spread and NLM's weights, which both underestimate the noise NLM leaves.
+    pub noise_scale: f32,
+}
+
+impl Default for BlendParams {
+    fn default() -> Self {
+        Self {
+            radius: 3,
+            noise_scale: 4.0,
+        }
+    }
+}
+
+/// The per-pixel weight (1 channel, in 0..=1) of `smoothed` over `input`: `input` and
+/// `smoothed` are the beauty before and after the smoothing stage, `noise_variance` the
+/// per-pixel, per-channel noise variance of `input`.
+pub fn blend_weight(
+    input: &Plane,
+    smoothed: &Plane,
+    noise_variance: &Plane,
+    p: &BlendParams,
+) -> Plane {
+    let (w, h) = (input.width(), input.height());
+    let n = w * h;
+    let c = input.channels().min(3);
+    let mut change = Plane::zeros(w, h, 1);
+    change
+        .data_mut()
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(i, d)| {
+            *d = (0..c)
+                .map(|k| (smoothed.data()[k * n + i] - input.data()[k * n + i]).powi(2))
+                .sum::<f32>()
+                / c as f32;
+        });
+    let change = box_mean(&change, p.radius);
+    // the noise variance, averaged over the same box: a few frames' spread underestimates
+    // heavy-tailed Monte Carlo noise at most pixels, its local mean much less so
+    let vc = noise_variance.channels().min(3);
+    let mut v = Plane::zeros(w, h, 1);
+    v.data_mut().par_iter_mut().enumerate().for_each(|(i, v)| {
+        let s = (0..vc)
+            .map(|k| noise_variance.data()[k * n + i])
+            .sum::<f32>()
+            / vc as f32;
+        *v = if s.is_finite() { s.max(0.0) } else { 0.0 };
+    });
+    let v = box_mean(&v, p.radius);
+    Plane::from_fn(w, h, 1, |x, y, _| {
+        let i = y * w + x;
+        let v = v.data()[i] * p.noise_scale;
+        let bias = (change.data()[i] - v).max(0.0);
+        if v + bias <= 0.0 {
+            // nothing changed and no noise: either output is the same
+            1.0
+        } else {
+            v / (v + bias)
+        }
+    })
+}
+
+/// `input + weight · (smoothed − input)` per pixel, for every channel.
+pub fn blend(input: &Plane, smoothed: &Plane, weight: &Plane) -> Plane {
+    let n = input.pixels();
+    let mut out = input.clone();
+    out.data_mut()
+        .par_chunks_mut(n)
+        .enumerate()
+        .for_each(|(c, ch)| {
+            let s = smoothed.channel(c);
+            for (i, v) in ch.iter_mut().enumerate() {
+                *v += weight.data()[i] * (s[i] - *v);
+            }
+        });
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn noise(x: usize, y: usize, c: usize) -> f32 {
+        let s = ((x * 73856093) ^ (y * 19349663) ^ (c * 83492791)) as u32;
+        let s = s.wrapping_mul(2654435761) ^ (s >> 13);
+        let s = s.wrapping_mul(2246822519);
+        (s >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+    }
+
+    /// A 1-px stripe pattern (detail) plus noise of the given amplitude, and a "smoothing"
+    /// that removes both (a flat image at the mean).
+    fn case(amp: f32) -> (Plane, Plane, Plane, Plane) {
+        let (w, h) = (48, 32);
+        let clean = Plane::from_fn(w, h, 3, |x, _, _| if x % 2 == 0 { 0.6 } else { 0.4 });
+        let input = Plane::from_fn(w, h, 3, |x, y, c| clean.get(x, y, c) + amp * noise(x, y, c));
+        let smoothed = Plane::filled(w, h, 3, 0.5);
+        let var = Plane::filled(w, h, 3, amp * amp / 12.0);
+        (clean, input, smoothed, var)
+    }
+
+    fn mse(a: &Plane, b: &Plane) -> f32 {
+        a.data()
+            .iter()
+            .zip(b.data())
+            .map(|(x, y)| (x - y).powi(2))
+            .sum::<f32>()
+            / a.data().len() as f32
+    }
+
+    #[test]
+    fn detail_beyond_the_noise_is_kept_and_noise_beyond_the_detail_is_smoothed() {
+        // clean input (noise far below the ±0.1 stripes): the blend keeps the input
+        let (clean, input, smoothed, var) = case(0.01);
+        let wt = blend_weight(&input, &smoothed, &var, &BlendParams::default());
+        let out = blend(&input, &smoothed, &wt);
+        assert!(
+            wt.data().iter().all(|&v| v < 0.05),
+            "max weight {:?}",
+            wt.data().iter().cloned().fold(0f32, f32::max)
+        );
+        assert!(mse(&out, &clean) <= mse(&input, &clean) * 1.01);
+        // noise far above the stripes: the blend takes the smoothed image
+        let (clean, input, smoothed, var) = case(2.0);
+        let wt = blend_weight(&input, &smoothed, &var, &BlendParams::default());
+        let out = blend(&input, &smoothed, &wt);
+        let mean_w = wt.data().iter().sum::<f32>() / wt.data().len() as f32;
+        assert!(mean_w > 0.8, "mean weight {mean_w}");
+        assert!(mse(&out, &clean) < 0.3 * mse(&input, &clean));
+    }
+
+    #[test]
+    fn the_blend_is_one_linear_operator_for_every_signal() {
+        let (_, input, smoothed, var) = case(0.3);
+        let wt = blend_weight(&input, &smoothed, &var, &BlendParams::default());
+        let a = Plane::from_fn(48, 32, 3, |x, y, c| noise(x + 7, y, c));
+        let b = Plane::from_fn(48, 32, 3, |x, y, c| noise(x, y + 5, c));
+        let sum = Plane::from_fn(48, 32, 3, |x, y, c| a.get(x, y, c) + b.get(x, y, c));
+        let (sa, sb) = (
+            Plane::filled(48, 32, 3, 0.1),
+            Plane::filled(48, 32, 3, -0.2),
+        );
+        let ssum = Plane::filled(48, 32, 3, 0.1 - 0.2);
+        let (oa, ob, os) = (
+            blend(&a, &sa, &wt),
+            blend(&b, &sb, &wt),
+            blend(&sum, &ssum, &wt),
+        );
+        for i in 0..os.data().len() {
+            assert!((oa.data()[i] + ob.data()[i] - os.data()[i]).abs() < 1e-5);
+        }
+    }
+}
