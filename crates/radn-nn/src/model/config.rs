@@ -79,6 +79,12 @@ pub struct NetConfig {
     /// that reaches the backbone.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub head_init: Option<f32>,
+    /// Kernel scales (Vogels et al. 2018): `n` predicts 5×5×T kernels also at 1/2, …,
+    /// 1/2^(n−1) resolution, applies them to the correspondingly downsampled window and
+    /// combines the results coarse to fine with per-pixel predicted blend weights
+    /// ([`crate::model::multiscale`]). `None` or 1: one full-resolution kernel per pixel.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub kernel_scales: Option<usize>,
     /// The backbone.
     pub backbone: Backbone,
 }
@@ -87,6 +93,7 @@ const PRESETS: &[(&str, &str)] = &[
     ("paper", include_str!("../../presets/paper.toml")),
     ("small", include_str!("../../presets/small.toml")),
     ("unet", include_str!("../../presets/unet.toml")),
+    ("unet-ms", include_str!("../../presets/unet-ms.toml")),
     ("tkpcn", include_str!("../../presets/tkpcn.toml")),
     ("spatial", include_str!("../../presets/spatial.toml")),
 ];
@@ -166,6 +173,14 @@ impl NetConfig {
                 }
             }
         }
+        if let Some(n) = self.kernel_scales {
+            if !(1..=4).contains(&n) {
+                return bad(format!("kernel_scales = {n} must be 1 to 4"));
+            }
+            if n > 1 && self.arch != Arch::Ra {
+                return bad("only arch = \"ra\" has multi-scale kernels".into());
+            }
+        }
         if let Some(eps) = self.demodulate {
             if !(eps.is_finite() && eps > 0.0) {
                 return bad(format!("demodulate = {eps} must be a positive number"));
@@ -190,6 +205,11 @@ impl NetConfig {
             self.frames
         };
         frames * self.kernel_size * self.kernel_size
+    }
+
+    /// Kernel scales (1: full resolution only).
+    pub fn scales(&self) -> usize {
+        self.kernel_scales.unwrap_or(1)
     }
 
     /// The threshold used when the caller gives none: the config's, else 1/(2K).

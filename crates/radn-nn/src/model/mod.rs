@@ -2,26 +2,33 @@
 //! predicts kernels for a window and applies them to any planes, with everything a network is
 //! built from — its configuration ([`config`]), layers ([`layers`]), Robust Average blocks
 //! ([`ra_block`]), per-frame backbones ([`backbone`]), kernels and their activation
-//! ([`kernel`]), albedo demodulation ([`demod`]) — and its files ([`store`]).
+//! ([`kernel`]) and their multi-scale reconstruction ([`multiscale`]), albedo demodulation
+//! ([`demod`]) — and its files ([`store`]).
 
 pub mod backbone;
 pub mod config;
 pub mod demod;
 pub mod kernel;
 pub mod layers;
+pub mod multiscale;
 pub mod ra_block;
 pub mod store;
 
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::nn::Initializer;
-use burn::tensor::activation::{relu, softmax};
+use burn::tensor::activation::{relu, sigmoid, softmax};
 use burn::tensor::{Device, Tensor};
 
 use crate::model::backbone::FrameNet;
 use crate::model::config::{Arch, NetConfig, INPUT_CHANNELS};
 use crate::model::kernel::{eta, Kernels};
 use crate::model::layers::{conv3, conv_flops};
+use crate::model::multiscale::{downsample, pad_to, padded_size, MultiScaleKernels};
+
+/// Initial bias of the multi-scale blend heads: `α = sigmoid(−2) ≈ 0.12`, so a new network
+/// starts close to its full-resolution kernels and learns how much of the coarse scales to use.
+pub const BLEND_INIT_BIAS: f32 = -2.0;
 
 /// The head's default initial scale ([`NetConfig::head_init`]).
 pub const DEFAULT_HEAD_INIT: f32 = 1e-3;
@@ -40,12 +47,33 @@ fn box_head(cin: usize, taps: usize, bias: f32, scale: f32, device: &Device) -> 
     head
 }
 
+/// A blend-weight head (one channel, before the sigmoid) with small weights and a bias of
+/// [`BLEND_INIT_BIAS`].
+fn blend_head(cin: usize, device: &Device) -> Conv2d {
+    let std = 1e-2 / ((cin * 9) as f64).sqrt();
+    let mut head = burn::nn::conv::Conv2dConfig::new([cin, 1], [3, 3])
+        .with_padding(burn::nn::PaddingConfig2d::Same)
+        .with_initializer(Initializer::Normal { mean: 0.0, std })
+        .init(device);
+    head.bias = Some(Param::from_tensor(Tensor::full(
+        [1],
+        BLEND_INIT_BIAS,
+        device,
+    )));
+    head
+}
+
 /// The paper's network: per-frame backbone with RA blocks, a per-frame head of k² weights,
-/// the frames' weights joined into one k×k×T kernel and activated together.
+/// the frames' weights joined into one k×k×T kernel and activated together. With several
+/// kernel scales, the backbone's features are also averaged down to 1/2, 1/4 … resolution,
+/// where further heads predict that scale's kernels, and the centre frame's features at each
+/// scale but the coarsest predict the blend weight of the coarser result.
 #[derive(Module, Debug)]
 pub struct RaNet {
     backbone: FrameNet,
     head: Conv2d,
+    coarse_heads: Vec<Conv2d>,
+    blend_heads: Vec<Conv2d>,
 }
 
 /// tKPCN (Vogels et al. 2018): per-frame spatial kernels, then a temporal kernel over the
@@ -95,6 +123,9 @@ pub struct Denoiser {
 pub enum Prediction {
     /// One k×k×T kernel per pixel (RA network), or k×k on the centre frame (spatial: T = 1).
     Single(Kernels),
+    /// k×k×T kernels at several scales, combined coarse to fine (RA network with
+    /// `kernel_scales` > 1).
+    MultiScale(MultiScaleKernels),
     /// tKPCN: spatial kernels per frame (`[B·T, k², H, W]`), then a temporal k×k×T kernel.
     TwoStage {
         /// Per-frame spatial kernels.
@@ -118,7 +149,17 @@ impl Denoiser {
             Arch::Ra => {
                 let backbone = FrameNet::new(&config.backbone, t, true, device);
                 let head = kernel_head(&backbone);
-                Network::Ra(RaNet { backbone, head })
+                let scales = config.scales();
+                let coarse_heads = (1..scales).map(|_| kernel_head(&backbone)).collect();
+                let blend_heads = (1..scales)
+                    .map(|_| blend_head(backbone.out_channels(), device))
+                    .collect();
+                Network::Ra(RaNet {
+                    backbone,
+                    head,
+                    coarse_heads,
+                    blend_heads,
+                })
             }
             Arch::Tkpcn => {
                 let backbone = FrameNet::new(&config.backbone, t, false, device);
@@ -138,6 +179,30 @@ impl Denoiser {
             }
         };
         Self { net, config }
+    }
+
+    /// The same network with `scales` kernel scales: the heads it lacks are added, each
+    /// coarse kernel head starting as a copy of the full-resolution head (the same features,
+    /// averaged, then give the same kernels at the coarser scale) and each blend head at
+    /// [`BLEND_INIT_BIAS`], so a fine-tune of a single-scale model starts close to it. Fewer
+    /// scales than the network has drop the coarsest heads. Only the RA network has scales.
+    pub fn with_kernel_scales(mut self, scales: usize, device: &Device) -> Result<Self, String> {
+        let Network::Ra(n) = &mut self.net else {
+            return Err("only arch = \"ra\" has multi-scale kernels".into());
+        };
+        let c = n.backbone.out_channels();
+        let k2 = self.config.kernel_size * self.config.kernel_size;
+        n.coarse_heads.truncate(scales.saturating_sub(1));
+        n.blend_heads.truncate(scales.saturating_sub(1));
+        while n.coarse_heads.len() + 1 < scales {
+            let mut h = box_head(c, k2, 0.0, 1.0, device);
+            h.weight = Param::from_tensor(n.head.weight.val());
+            h.bias = n.head.bias.as_ref().map(|b| Param::from_tensor(b.val()));
+            n.coarse_heads.push(h);
+            n.blend_heads.push(blend_head(c, device));
+        }
+        self.config.kernel_scales = (scales > 1).then_some(scales);
+        Ok(self)
     }
 
     /// Draws every parameter's initial value now. burn initialises parameters lazily, on first
@@ -172,6 +237,12 @@ impl Denoiser {
             Network::Ra(n) => {
                 let mut v = backbone(&n.backbone);
                 v.push(("head".into(), n.head.weight.val()));
+                for (s, h) in n.coarse_heads.iter().enumerate() {
+                    v.push((format!("head.scale{}", s + 1), h.weight.val()));
+                }
+                for (s, h) in n.blend_heads.iter().enumerate() {
+                    v.push((format!("blend.scale{s}"), h.weight.val()));
+                }
                 v
             }
             Network::Spatial(n) => {
@@ -200,6 +271,10 @@ impl Denoiser {
     /// block adds 2 per recurrent step, kernel application adds k/2 (twice for tKPCN). `None`
     /// for a UNet, whose pooling grid makes tiles depend on their position.
     pub fn receptive_radius(&self) -> Option<usize> {
+        if self.config.scales() > 1 {
+            // the 2×2 grid of the coarse scales makes tiles depend on their position
+            return None;
+        }
         let k = self.config.kernel_size / 2;
         match &self.config.backbone {
             crate::model::config::Backbone::Resnet {
@@ -231,7 +306,16 @@ impl Denoiser {
         let apply = |frames: usize| 2.0 * (frames * k2 * channels * px) as f64;
         match &self.net {
             Network::Ra(n) => {
-                n.backbone.flops(h, w, t) + t as f64 * conv_flops(&n.head, px) + apply(t)
+                let scale_px = |s: usize| (h >> s) * (w >> s);
+                let coarse: f64 = (1..self.config.scales())
+                    .map(|s| {
+                        let p = scale_px(s);
+                        t as f64 * conv_flops(&n.coarse_heads[s - 1], p)
+                            + conv_flops(&n.blend_heads[s - 1], scale_px(s - 1))
+                            + 2.0 * (t * k2 * channels * p) as f64
+                    })
+                    .sum();
+                n.backbone.flops(h, w, t) + t as f64 * conv_flops(&n.head, px) + apply(t) + coarse
             }
             Network::Spatial(n) => n.backbone.flops(h, w, 1) + conv_flops(&n.head, px) + apply(1),
             Network::Tkpcn(n) => {
@@ -272,7 +356,7 @@ impl Denoiser {
         let act = self.config.activation;
         let centre = frames / 2;
         match &self.net {
-            Network::Ra(n) => {
+            Network::Ra(n) if self.config.scales() == 1 => {
                 let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
                 let raw = n.head.forward(feats).reshape([b, frames * k2, h, w]);
                 let weights = eta(raw, t, act, centre * k2 + k2 / 2);
@@ -280,6 +364,46 @@ impl Denoiser {
                     weights,
                     frames,
                     size: k,
+                })
+            }
+            Network::Ra(n) => {
+                let scales = self.config.scales();
+                let (ph, pw) = padded_size(h, w, scales);
+                let x = pad_to(input.reshape([b * frames, c, h, w]), ph, pw);
+                let mut feats = n.backbone.forward(x);
+                let mut kernels = Vec::with_capacity(scales);
+                let mut blend = Vec::with_capacity(scales - 1);
+                for s in 0..scales {
+                    if s > 0 {
+                        feats = downsample(feats);
+                    }
+                    let [_, fc, hs, ws] = feats.dims();
+                    let head = if s == 0 {
+                        &n.head
+                    } else {
+                        &n.coarse_heads[s - 1]
+                    };
+                    let raw = head
+                        .forward(feats.clone())
+                        .reshape([b, frames * k2, hs, ws]);
+                    kernels.push(Kernels {
+                        weights: eta(raw, t, act, centre * k2 + k2 / 2),
+                        frames,
+                        size: k,
+                    });
+                    if s + 1 < scales {
+                        let centre_feats = feats
+                            .clone()
+                            .reshape([b, frames, fc, hs, ws])
+                            .narrow(1, centre, 1)
+                            .reshape([b, fc, hs, ws]);
+                        blend.push(sigmoid(n.blend_heads[s].forward(centre_feats)));
+                    }
+                }
+                Prediction::MultiScale(MultiScaleKernels {
+                    scales: kernels,
+                    blend,
+                    size: (h, w),
                 })
             }
             Network::Spatial(n) => {
@@ -323,6 +447,7 @@ impl Prediction {
         match self {
             Prediction::Single(k) if k.frames == 1 => k.apply(values.narrow(1, t / 2, 1)),
             Prediction::Single(k) => k.apply(values),
+            Prediction::MultiScale(m) => m.apply(values),
             Prediction::TwoStage { spatial, temporal } => {
                 let per_frame = spatial.apply(values.reshape([b * t, 1, c, h, w]));
                 temporal.apply(per_frame.reshape([b, t, c, h, w]))
@@ -336,6 +461,7 @@ impl Prediction {
         match self {
             Prediction::Single(k) if k.frames == 1 => mask[mask.len() / 2].then(|| self.clone()),
             Prediction::Single(k) => Some(Prediction::Single(k.subset(mask))),
+            Prediction::MultiScale(m) => Some(Prediction::MultiScale(m.subset(mask))),
             Prediction::TwoStage { spatial, temporal } => Some(Prediction::TwoStage {
                 spatial: spatial.clone(),
                 temporal: temporal.subset(mask),
@@ -356,6 +482,7 @@ impl Prediction {
                     .expand([b, frames, h, w])
             }
             Prediction::Single(k) => k.frame_mass(),
+            Prediction::MultiScale(m) => m.frame_mass(),
             Prediction::TwoStage { temporal, .. } => temporal.frame_mass(),
         }
     }
@@ -426,7 +553,7 @@ mod tests {
     #[test]
     fn shapes_for_five_and_three_frames_and_every_family() {
         let device = Device::flex();
-        for name in ["small", "unet", "tkpcn", "spatial"] {
+        for name in ["small", "unet", "unet-ms", "tkpcn", "spatial"] {
             for frames in [5usize, 3] {
                 let mut cfg = NetConfig::preset(name).unwrap();
                 cfg.frames = frames;
@@ -448,6 +575,42 @@ mod tests {
                 assert!((centre - 1.0).abs() < 1e-4, "{name} T={frames}: {centre}");
             }
         }
+    }
+
+    #[test]
+    fn a_multi_scale_network_with_no_blend_weight_is_exactly_its_single_scale_network() {
+        let device = Device::flex();
+        let single = Denoiser::new(NetConfig::preset("small").unwrap(), &device);
+        let multi = single.clone().with_kernel_scales(3, &device).unwrap();
+        assert_eq!(multi.config.scales(), 3);
+        let (h, w) = (16, 20);
+        let x = window(1, 5, h, w, &device);
+        let t = single.config.default_threshold();
+        let values = Tensor::<5>::from_data(
+            TensorData::new(
+                (0..5 * 3 * h * w)
+                    .map(|i| ((i * 7919) % 113) as f32 / 50.0)
+                    .collect::<Vec<f32>>(),
+                [1, 5, 3, h, w],
+            ),
+            &device,
+        );
+        let want = single.predict(x.clone(), t).apply(values.clone());
+        let Prediction::MultiScale(mut m) = multi.predict(x, t) else {
+            panic!("three scales predict multi-scale kernels")
+        };
+        assert_eq!(m.scales.len(), 3);
+        assert_eq!(m.scales[2].weights.dims(), [1, 5 * 25, h / 4, w / 4]);
+        let blended = m.apply(values.clone());
+        m.blend = m.blend.iter().map(|a| a.clone().zeros_like()).collect();
+        let got = m.apply(values);
+        assert_eq!(
+            got.to_data().try_to_vec::<f32>().unwrap(),
+            want.to_data().try_to_vec::<f32>().unwrap()
+        );
+        // the grown network's blend starts small but not at zero: the coarse scales take part
+        let diff: f32 = (blended - got).abs().max().into_scalar();
+        assert!(diff > 0.0, "{diff}");
     }
 
     #[test]

@@ -255,6 +255,15 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
             ),
         });
     }
+    if d.config.scales() != config.scales() {
+        // a fine-tune may add (or drop) kernel scales: the new heads start from the old ones
+        d = d
+            .with_kernel_scales(config.scales(), device)
+            .map_err(|detail| NnError::Load {
+                path: path.to_path_buf(),
+                detail,
+            })?;
+    }
     d.config = config;
     Ok(d)
 }
