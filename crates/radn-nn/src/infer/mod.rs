@@ -167,7 +167,12 @@ impl NetworkDenoiser {
         let (w, h) = (c.color.width(), c.color.height());
         let halo = self.denoiser.receptive_radius();
         let (tw, th) = match (halo, self.tile) {
-            (Some(_), tile) if tile > 0 => (tile.min(w), tile.min(h)),
+            (Some(_), tile) if tile > 0 => {
+                // multi-scale kernels: tiles on the coarsest scale's grid
+                let g = self.denoiser.tile_grid();
+                let tile = (tile / g * g).max(g);
+                (tile.min(w), tile.min(h))
+            }
             _ => (w, h), // whole frame: UNets, or tiling switched off
         };
         let halo = halo.unwrap_or(0);
@@ -275,8 +280,11 @@ impl WindowDenoiser for NetworkDenoiser {
 
     fn banded(&self) -> Option<&dyn BandDenoiser> {
         // tiles of a receptive field's halo make bands possible; UNets and `--tile 0` need
-        // whole frames
-        (self.tile > 0 && self.denoiser.receptive_radius().is_some()).then_some(self as _)
+        // whole frames, and multi-scale kernels too: a band's rows do not start on their grid
+        (self.tile > 0
+            && self.denoiser.receptive_radius().is_some()
+            && self.denoiser.tile_grid() == 1)
+            .then_some(self as _)
     }
 }
 
@@ -349,6 +357,56 @@ mod tests {
             }
             let most = calls.iter().map(|c| c.len()).max().unwrap();
             assert_eq!(most, batch.min(2), "batch {batch}: {calls:?}");
+        }
+    }
+
+    #[test]
+    fn tiled_and_whole_frame_results_agree_with_multi_scale_kernels() {
+        let device = Device::flex();
+        // the shipped model grown to three scales: trained kernels depend strongly on the
+        // features, so a halo too small shows (a fresh network is nearly a box filter whose
+        // output hardly depends on what a tile sees)
+        let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/default.safetensors");
+        let d = crate::model::store::load(&shipped, &device)
+            .unwrap()
+            .with_kernel_scales(3, &device)
+            .unwrap();
+        d.materialize();
+        let halo = d.receptive_radius().expect("a ResNet's reach is bounded");
+        assert_eq!(halo % 4, 0);
+        // wide enough that inner tiles read less than the whole frame (across: the tiles of
+        // one row differ only in x)
+        let (w, h) = (2 * halo + 70, 30);
+        let win = window(w, h);
+        let mut n = NetworkDenoiser::new(d, device.clone());
+        n.tile = 0;
+        let whole = n.denoise_aligned(&win);
+        // 30 is rounded down to 28, the grid's multiple
+        for tile in [32usize, 30] {
+            n.tile = tile;
+            assert!(n
+                .tiles(&win, 0..h)
+                .iter()
+                .any(|t| t.region.size() != (w, h)));
+            let tiled = n.denoise_aligned(&win);
+            for (a, b) in [
+                (&whole.color, &tiled.color),
+                (&whole.aovs[0], &tiled.aovs[0]),
+                (whole.alpha.as_ref().unwrap(), tiled.alpha.as_ref().unwrap()),
+            ] {
+                let worst = a
+                    .data()
+                    .iter()
+                    .zip(b.data())
+                    .map(|(x, y)| (x - y).abs())
+                    .fold(0.0f32, f32::max);
+                // float rounding: 2e-7; a halo of 8 px instead of the bound: 1e-5
+                assert!(
+                    worst < 1e-6,
+                    "tile {tile}: tiled and whole differ by {worst}"
+                );
+            }
         }
     }
 

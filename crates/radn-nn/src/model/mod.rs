@@ -271,11 +271,22 @@ impl Denoiser {
     /// block adds 2 per recurrent step, kernel application adds k/2 (twice for tKPCN). `None`
     /// for a UNet, whose pooling grid makes tiles depend on their position.
     pub fn receptive_radius(&self) -> Option<usize> {
-        if self.config.scales() > 1 {
-            // the 2×2 grid of the coarse scales makes tiles depend on their position
-            return None;
-        }
         let k = self.config.kernel_size / 2;
+        if self.config.scales() > 1 {
+            // a coarse kernel at scale s reaches k coarse pixels, its head one more, the box
+            // averages one more: (k + 3)·2^s pixels beyond the backbone's reach. Tiles must then
+            // start on the coarsest scale's grid ([`Denoiser::tile_grid`]), so the halo is a
+            // multiple of it.
+            let crate::model::config::Backbone::Resnet {
+                blocks, ra_after, ..
+            } = &self.config.backbone
+            else {
+                return None; // a UNet's own pooling grid
+            };
+            let m = self.tile_grid();
+            let backbone = 1 + 2 * blocks + ra_after.len() * 2 * self.config.frames;
+            return Some((backbone + 1 + k + m * (k + 3)).div_ceil(m) * m);
+        }
         match &self.config.backbone {
             crate::model::config::Backbone::Resnet {
                 blocks, ra_after, ..
@@ -328,6 +339,12 @@ impl Denoiser {
                     + apply(t)
             }
         }
+    }
+
+    /// The grid tiles must start on and their sizes be multiples of, so that a tiled result
+    /// equals the whole frame's: 2^(scales − 1) (1 for single-scale kernels).
+    pub fn tile_grid(&self) -> usize {
+        1 << (self.config.scales() - 1)
     }
 
     /// The multiple that tile sizes must have.

@@ -81,17 +81,21 @@ pub struct PairRule {
     /// the target, not less of it, and these pairs are the only ones that show the network
     /// the least noisy input level.
     pub noisier_targets: bool,
+    /// The pseudo-reference was made from the `high` render (the classic denoiser's, `radn
+    /// pseudoref`), so `high → pseudo` would pair a render with itself. `false` for the OIDN
+    /// teacher, an independent render.
+    pub pseudo_from_high: bool,
 }
 
-/// Every valid pair under `rule`: never the same render, never `high → pseudo` (the
-/// pseudo-reference is made from the `high` render), and the target less noisy than the input
+/// Every valid pair under `rule`: never the same render, never `high → pseudo` when the
+/// pseudo-reference is made from the `high` render, and the target less noisy than the input
 /// unless `rule.noisier_targets` allows an independent noisier render.
 pub fn valid_pairs(rule: PairRule) -> Vec<Pair> {
     let mut v = Vec::new();
     for (i, inp) in INPUT_LEVELS.iter().enumerate() {
         for (t, tgt) in TARGET_LEVELS.iter().enumerate() {
             let pseudo = *tgt == "pseudo";
-            let independent = !(*inp == "high" && pseudo) && inp != tgt;
+            let independent = !(*inp == "high" && pseudo && rule.pseudo_from_high) && inp != tgt;
             let available = !pseudo || rule.pseudo;
             let direction = noise_rank(tgt) < noise_rank(inp) || (rule.noisier_targets && !pseudo);
             if direction && independent && available {
@@ -182,6 +186,7 @@ mod tests {
             let rule = PairRule {
                 pseudo,
                 noisier_targets: false,
+                pseudo_from_high: true,
             };
             let pairs = valid_pairs(rule);
             assert_eq!(pairs.len(), if pseudo { 5 } else { 3 });
@@ -199,12 +204,28 @@ mod tests {
     }
 
     #[test]
+    fn an_independent_teacher_is_a_target_for_the_least_noisy_input_too() {
+        let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
+        let rule = |from_high| PairRule {
+            pseudo: true,
+            noisier_targets: false,
+            pseudo_from_high: from_high,
+        };
+        let classic: Vec<_> = valid_pairs(rule(true)).iter().map(name).collect();
+        let teacher: Vec<_> = valid_pairs(rule(false)).iter().map(name).collect();
+        assert!(!classic.contains(&("high", "pseudo")));
+        assert!(teacher.contains(&("high", "pseudo")));
+        assert_eq!(teacher.len(), classic.len() + 1);
+    }
+
+    #[test]
     fn noisier_targets_add_every_other_independent_render() {
         let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
         for pseudo in [false, true] {
             let pairs: Vec<_> = valid_pairs(PairRule {
                 pseudo,
                 noisier_targets: true,
+                pseudo_from_high: true,
             })
             .iter()
             .map(name)

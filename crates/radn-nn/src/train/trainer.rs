@@ -73,10 +73,11 @@ pub struct TrainConfig {
     /// kernel setting (threshold, demodulation). Its layers must match `model`'s.
     #[serde(default)]
     pub init: Option<PathBuf>,
-    /// Whether the pseudo-references (the classic denoiser's output) are drawn as targets.
-    /// They are the cleanest targets, but a network trained on them also learns that
-    /// denoiser's mistakes (it blurs thin lines and texture); `false` trains on the independent
-    /// noisier renders alone (Noise2Noise pairs), which are unbiased.
+    /// Whether the pseudo-references are drawn as targets: the classic denoiser's output
+    /// (`radn prepare`'s default) or the OIDN teacher's (`radn prepare --pseudo oidn`). They are
+    /// the cleanest targets, but a network trained on them also learns that denoiser's
+    /// mistakes (the classic one blurs thin lines and texture); `false` trains on the
+    /// independent noisier renders alone (Noise2Noise pairs), which are unbiased.
     #[serde(default = "d_pseudo")]
     pub pseudo_references: bool,
     /// Whether an independent render noisier than the input may be the target (`high → half`
@@ -412,6 +413,8 @@ impl Trainer {
                     PairRule {
                         pseudo: self.config.pseudo_references,
                         noisier_targets: self.config.noisier_targets,
+                        pseudo_from_high: self.train.manifest.pseudo_level
+                            == crate::train::dataset::DEFAULT_PSEUDO_LEVEL,
                     },
                 );
                 let (x0, y0) = (rng.below(tile - crop + 1), rng.below(tile - crop + 1));
