@@ -5,15 +5,15 @@ import json
 import sys
 from collections import OrderedDict
 
-LEVELS = ["low", "half", "high"]
-METHODS = ["noisy", "classic", "oidn", "tkpcn", "radn", "radn, 2 passes"]
+LEVELS = ["low", "half", "high", "spp0064", "spp0128"]
+METHODS = ["noisy", "classic", "oidn", "tkpcn", "previous default", "radn", "radn, 2 passes"]
 
 
 def main():
     rows = [json.loads(line) for line in open(sys.argv[1]) if line.strip()]
     groups = OrderedDict()
     for r in rows:
-        g = "sample" if r["seq"] == "sample" else "test scenes"
+        g = "sample" if r["seq"] == "sample" else r.get("split", "test") + " scenes"
         groups.setdefault(g, OrderedDict()).setdefault((r["level"], r["method"]), []).append(r)
     for g, cells in groups.items():
         n = len({r["seq"] for rs in cells.values() for r in rs})

@@ -119,10 +119,10 @@ pub struct ClassicArgs {
     pub fixed_guided: bool,
     /// Classic: how many noise variances of change the guided filter may make before its
     /// input is kept instead (1 = the Wiener gain; larger smooths more; chosen on the detail validation scenes).
-    #[arg(long, default_value_t = 4.0)]
+    #[arg(long, default_value_t = 1.0)]
     pub guided_noise_scale: f32,
     /// Classic: radius of the box the guided filter's change and the noise are compared over.
-    #[arg(long, default_value_t = 3)]
+    #[arg(long, default_value_t = 1)]
     pub guided_blend_radius: usize,
     /// Classic: filter the beauty itself instead of beauty / albedo.
     #[arg(long)]
