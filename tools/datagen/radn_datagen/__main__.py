@@ -49,7 +49,9 @@ def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
     """The scene's base sample count and resolution (drawn per scene from the choices)."""
     spp = per_scene_choice(seed, "spp", spp_choices)
     scale = per_scene_choice(seed, "resolution", res_scales)
-    res = (max(64, int(round(res[0] * scale / 8)) * 8), max(64, int(round(res[1] * scale / 8)) * 8))
+    if scale != 1:
+        # scaled sizes on a multiple of 8 (the given size itself is kept exactly)
+        res = tuple(max(8, int(round(v * scale / 8)) * 8) for v in res)
     extra = sorted({n for n in extra_spp if n not in level_spp(spp).values()})
     return spp, res, extra
 

@@ -31,7 +31,7 @@ impl Default for BlendParams {
     fn default() -> Self {
         Self {
             radius: 1,
-            noise_scale: 1.0,
+            noise_scale: 2.0,
         }
     }
 }

@@ -118,8 +118,8 @@ pub struct ClassicArgs {
     #[arg(long)]
     pub fixed_guided: bool,
     /// Classic: how many noise variances of change the guided filter may make before its
-    /// input is kept instead (1 = the Wiener gain; larger smooths more; chosen on the detail validation scenes).
-    #[arg(long, default_value_t = 1.0)]
+    /// input is kept instead (1 = the Wiener gain; larger smooths more; 2 chosen on the detail validation scenes, docs/detail.md).
+    #[arg(long, default_value_t = 2.0)]
     pub guided_noise_scale: f32,
     /// Classic: radius of the box the guided filter's change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
