@@ -9,3 +9,12 @@ pub mod refine;
 pub mod temporal;
 pub mod tvl1;
 pub mod wiener;
+
+/// Deterministic white noise in −0.5..0.5 per pixel and channel, for the stages' tests.
+#[cfg(test)]
+pub(crate) fn test_noise(x: usize, y: usize, c: usize) -> f32 {
+    let s = ((x * 73856093) ^ (y * 19349663) ^ (c * 83492791)) as u32;
+    let s = s.wrapping_mul(2654435761) ^ (s >> 13);
+    let s = s.wrapping_mul(2246822519);
+    (s >> 8) as f32 / (1u32 << 24) as f32 - 0.5
+}

@@ -191,13 +191,7 @@ fn feature_energy(g: &NlmGuide, i: usize, j: usize, n: usize, p: &NlmParams) -> 
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn noise(x: usize, y: usize, c: usize) -> f32 {
-        let s = ((x * 73856093) ^ (y * 19349663) ^ (c * 83492791)) as u32;
-        let s = s.wrapping_mul(2654435761) ^ (s >> 13);
-        let s = s.wrapping_mul(2246822519);
-        (s >> 8) as f32 / (1u32 << 24) as f32 - 0.5
-    }
+    use crate::classic::test_noise as noise;
 
     #[test]
     fn constant_image_plus_noise_loses_most_of_its_variance() {

@@ -104,13 +104,7 @@ pub fn blend(input: &Plane, smoothed: &Plane, weight: &Plane) -> Plane {
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    fn noise(x: usize, y: usize, c: usize) -> f32 {
-        let s = ((x * 73856093) ^ (y * 19349663) ^ (c * 83492791)) as u32;
-        let s = s.wrapping_mul(2654435761) ^ (s >> 13);
-        let s = s.wrapping_mul(2246822519);
-        (s >> 8) as f32 / (1u32 << 24) as f32 - 0.5
-    }
+    use crate::classic::test_noise as noise;
 
     /// A 1-px stripe pattern (detail) plus noise of the given amplitude, and a "smoothing"
     /// that removes both (a flat image at the mean).

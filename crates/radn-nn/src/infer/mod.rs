@@ -338,6 +338,18 @@ mod tests {
         }
     }
 
+    /// The largest difference between two results over colour, the first AOV and alpha.
+    fn worst_difference(whole: &Denoised, tiled: &Denoised) -> f32 {
+        [
+            (&whole.color, &tiled.color),
+            (&whole.aovs[0], &tiled.aovs[0]),
+            (whole.alpha.as_ref().unwrap(), tiled.alpha.as_ref().unwrap()),
+        ]
+        .iter()
+        .flat_map(|(a, b)| a.data().iter().zip(b.data()).map(|(x, y)| (x - y).abs()))
+        .fold(0.0f32, f32::max)
+    }
+
     #[test]
     fn only_tiles_of_one_size_share_a_call() {
         let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
@@ -389,24 +401,12 @@ mod tests {
                 .tiles(&win, 0..h)
                 .iter()
                 .any(|t| t.region.size() != (w, h)));
-            let tiled = n.denoise_aligned(&win);
-            for (a, b) in [
-                (&whole.color, &tiled.color),
-                (&whole.aovs[0], &tiled.aovs[0]),
-                (whole.alpha.as_ref().unwrap(), tiled.alpha.as_ref().unwrap()),
-            ] {
-                let worst = a
-                    .data()
-                    .iter()
-                    .zip(b.data())
-                    .map(|(x, y)| (x - y).abs())
-                    .fold(0.0f32, f32::max);
-                // float rounding: 2e-7; a halo of 8 px instead of the bound: 1e-5
-                assert!(
-                    worst < 1e-6,
-                    "tile {tile}: tiled and whole differ by {worst}"
-                );
-            }
+            let worst = worst_difference(&whole, &n.denoise_aligned(&win));
+            // float rounding: 2e-7; a halo of 8 px instead of the bound: 1e-5
+            assert!(
+                worst < 1e-6,
+                "tile {tile}: tiled and whole differ by {worst}"
+            );
         }
     }
 
@@ -427,24 +427,12 @@ mod tests {
             for (tile, batch) in [(16usize, 1usize), (33, 1), (16, 3)] {
                 n.tile = tile;
                 n.batch = batch;
-                let tiled = n.denoise_aligned(&win);
-                for (a, b) in [
-                    (&whole.color, &tiled.color),
-                    (&whole.aovs[0], &tiled.aovs[0]),
-                    (whole.alpha.as_ref().unwrap(), tiled.alpha.as_ref().unwrap()),
-                ] {
-                    let worst = a
-                        .data()
-                        .iter()
-                        .zip(b.data())
-                        .map(|(x, y)| (x - y).abs())
-                        .fold(0.0f32, f32::max);
-                    assert!(
-                        worst < 1e-5,
-                        "{preset} {demodulate:?}, tile {tile} batch {batch}: tiled and whole \
-                         differ by {worst}"
-                    );
-                }
+                let worst = worst_difference(&whole, &n.denoise_aligned(&win));
+                assert!(
+                    worst < 1e-5,
+                    "{preset} {demodulate:?}, tile {tile} batch {batch}: tiled and whole \
+                     differ by {worst}"
+                );
             }
         }
     }
