@@ -10,7 +10,10 @@ use std::ops::Range;
 use std::path::Path;
 
 use crate::error::Result;
-use crate::frame::{add_geometry_depths, mean_geometry_depth, Frame, FrameReader};
+use crate::frame::{
+    add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, Frame,
+    FrameReader,
+};
 use crate::plane::Plane;
 
 /// Rows each one-frame hop of banded alignment needs beyond the rows its motion reaches: the
@@ -236,6 +239,8 @@ pub struct FrameStats {
     pub reach: MotionReach,
     /// (sum, count) of its geometry depths ([`crate::frame::add_geometry_depths`]).
     pub depth: Option<(f64, usize)>,
+    /// (sum, count) of its log luminances ([`crate::frame::add_log_luminance`]).
+    pub luminance: (f64, usize),
     /// NaN/Inf samples repaired in it.
     pub repaired: usize,
     /// Its first row: the channel names a result is written into, without reading the file
@@ -251,6 +256,7 @@ impl FrameStats {
         let mut stats = FrameStats {
             reach: MotionReach::default(),
             depth: None,
+            luminance: (0.0, 0),
             repaired: 0,
             names: first.rows(0..1),
         };
@@ -264,6 +270,7 @@ impl FrameStats {
             if let Some(d) = &band.depth {
                 stats.depth = Some(add_geometry_depths(d, stats.depth.unwrap_or((0.0, 0))));
             }
+            stats.luminance = add_log_luminance(&band.color, stats.luminance);
             stats.repaired += band.repaired;
         }
         Ok(stats)
@@ -272,6 +279,12 @@ impl FrameStats {
     /// The frame's mean geometry depth (1 without depth).
     pub fn mean_depth(&self) -> f32 {
         self.depth.map_or(1.0, mean_geometry_depth)
+    }
+
+    /// The frame's exposure: its log-average luminance
+    /// ([`crate::frame::log_average_luminance`]).
+    pub fn exposure(&self) -> f32 {
+        log_average_luminance(self.luminance)
     }
 }
 

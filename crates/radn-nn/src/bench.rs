@@ -10,7 +10,7 @@ use burn::optim::{AdamConfig, GradientsParams};
 use burn::tensor::activation::relu;
 use burn::tensor::{Device, Distribution, Tensor};
 
-use crate::model::config::{NetConfig, INPUT_CHANNELS};
+use crate::model::config::NetConfig;
 use crate::model::layers::{conv3, conv_flops};
 use crate::model::Denoiser;
 use crate::train::loss::smape;
@@ -50,7 +50,7 @@ fn random_windows(
             device,
         )
     };
-    (random(INPUT_CHANNELS), random(3))
+    (random(cfg.input_channels()), random(3))
 }
 
 /// Times training steps of a network on batches of random `tile × tile` windows.

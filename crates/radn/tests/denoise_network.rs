@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use common::{assert_aovs_sum_to_beauty, radn, radn_ok, sample, with_aovs};
 use radn_core::exr_file::{ExrFile, SampleKind};
 use radn_nn::burn::tensor::Device;
+use radn_nn::model::config::InputConfig;
 use radn_nn::{Denoiser, NetConfig};
 
 fn model(dir: &Path) -> PathBuf {
@@ -16,9 +17,15 @@ fn model(dir: &Path) -> PathBuf {
 
 /// A fresh `small` model, with albedo demodulation ε when given.
 fn model_with(dir: &Path, demodulate: Option<f32>) -> PathBuf {
-    let p = dir.join(format!("m-{demodulate:?}.safetensors"));
+    model_reading(dir, demodulate, InputConfig::default())
+}
+
+/// A fresh `small` model with albedo demodulation ε when given, reading `inputs`.
+fn model_reading(dir: &Path, demodulate: Option<f32>, inputs: InputConfig) -> PathBuf {
+    let p = dir.join(format!("m-{demodulate:?}-{inputs:?}.safetensors"));
     let mut config = NetConfig::preset("small").unwrap();
     config.demodulate = demodulate;
+    config.inputs = inputs;
     let d = Denoiser::new(config, &Device::flex());
     radn_nn::model::store::save(&d, &p).unwrap();
     p
@@ -208,9 +215,15 @@ fn tall(dir: &Path) -> String {
 #[test]
 fn banded_denoising_equals_whole_frame_denoising() {
     // `--tile N` reads and denoises each frame in bands of N rows, each band from only the rows
-    // of its window it reaches; `--tile 0` aligns and denoises whole frames
+    // of its window it reaches; `--tile 0` aligns and denoises whole frames. The network
+    // normalises by the frame's exposure and reads the noise estimate: bands use the whole
+    // frame's exposure.
     let d = tempfile::tempdir().unwrap();
-    let m = model_with(d.path(), Some(0.5));
+    let inputs = InputConfig {
+        exposure: true,
+        noise: true,
+    };
+    let m = model_reading(d.path(), Some(0.5), inputs);
     let input = tall(d.path());
     let run = |tile: &str| {
         let out = format!("{}/t{tile}/f_####.exr", d.path().display());

@@ -2,9 +2,11 @@
 //! linear values kernels are applied to.
 
 use radn_core::align::AlignedWindow;
-use radn_core::frame::{add_geometry_depths, mean_geometry_depth, FAR_DEPTH};
+use radn_core::frame::{
+    add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, FAR_DEPTH,
+};
 
-use crate::model::config::INPUT_CHANNELS;
+use crate::model::config::{InputConfig, INPUT_CHANNELS};
 
 /// Largest magnitude of the log depth ratio fed to the network.
 const DEPTH_CLAMP: f32 = 3.0;
@@ -55,23 +57,39 @@ impl Region {
     }
 }
 
-/// The depth scale of a window: the centre frame's mean finite depth (1 without depth). One
-/// number per frame, so that tiles of a frame see the same depth features as the whole frame.
-pub fn depth_scale(win: &AlignedWindow) -> f32 {
-    win.centre().depth.as_ref().map_or(1.0, |d| {
-        mean_geometry_depth(add_geometry_depths(d, (0.0, 0)))
-    })
+/// The per-frame numbers a window's features are normalised by. They are statistics of the
+/// whole centre frame, so that its tiles and bands see the same features as the whole frame.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct FeatureScales {
+    /// The centre frame's mean geometry depth (1 without depth).
+    pub depth: f32,
+    /// The centre frame's exposure: its log-average luminance (1 for a black frame).
+    pub exposure: f32,
 }
 
-/// Per-frame network features of a window, `[T, INPUT_CHANNELS, H, W]` row-major: log colour,
-/// albedo, normal, depth relative to the centre frame's mean (log), confidence.
+impl FeatureScales {
+    /// The scales of a whole window.
+    pub fn of(win: &AlignedWindow) -> Self {
+        let c = win.centre();
+        Self {
+            depth: c.depth.as_ref().map_or(1.0, |d| {
+                mean_geometry_depth(add_geometry_depths(d, (0.0, 0)))
+            }),
+            exposure: log_average_luminance(add_log_luminance(&c.color, (0.0, 0))),
+        }
+    }
+}
+
+/// Base network features of a window, `[T, INPUT_CHANNELS, H, W]` row-major: log colour,
+/// albedo, normal, depth relative to the centre frame's mean (log), confidence. Tiles store
+/// these; [`network_features`] derives what a given network reads.
 pub fn features(win: &AlignedWindow) -> Vec<f32> {
     let c = win.centre();
     let region = Region::whole(c.color.width(), c.color.height());
-    features_in(win, depth_scale(win), region)
+    features_in(win, FeatureScales::of(win).depth, region)
 }
 
-/// The features of [`features`] for one region of the frame, `[T, INPUT_CHANNELS, h, w]`
+/// The base features of [`features`] for one region of the frame, `[T, INPUT_CHANNELS, h, w]`
 /// (tiled inference computes them tile by tile instead of holding the whole frame's).
 pub fn features_in(win: &AlignedWindow, depth_ref: f32, region: Region) -> Vec<f32> {
     let n = region.pixels();
@@ -113,6 +131,104 @@ pub fn features_in(win: &AlignedWindow, depth_ref: f32, region: Region) -> Vec<f
     out
 }
 
+/// The input a network configured with `inputs` reads for one region, `[T, C, h, w]`: the
+/// base features, colour divided by the exposure where asked, and the noise estimate.
+pub fn network_input(
+    win: &AlignedWindow,
+    scales: FeatureScales,
+    region: Region,
+    inputs: &InputConfig,
+) -> Vec<f32> {
+    let base = features_in(win, scales.depth, region);
+    if inputs.is_base() {
+        return base;
+    }
+    let mut colour = Vec::with_capacity(win.frames.len() * 3 * region.pixels());
+    for f in &win.frames {
+        region.crop(&f.color, &mut colour);
+    }
+    network_features(
+        base,
+        &colour,
+        win.frames.len(),
+        region.pixels(),
+        inputs,
+        scales.exposure,
+    )
+}
+
+/// The features a network configured with `inputs` reads, from the base features `base`
+/// (`[T, INPUT_CHANNELS, n]`, as [`features_in`] makes and tiles store) and the linear colour
+/// `colour` (`[T, 3, n]`) of the same pixels; `exposure` is the centre frame's
+/// ([`FeatureScales::exposure`]). Training and inference both build their input here.
+///
+/// - `exposure`: the log colour becomes `ln(1 + max(0, c) / exposure)`.
+/// - `noise`: one more channel per frame, the same in every frame: at each pixel, the spread
+///   of the frames' log luminance `ℓ` (mean of the three log-colour channels), weighted by
+///   their confidence `c_k`: `sqrt(Σ c_k (ℓ_k − ℓ̄)² / Σ c_k · n/(n − 1))` with `n = (Σ c_k)² /
+///   Σ c_k²` the effective number of frames (0 where fewer than about one frame besides the
+///   centre is trusted).
+pub fn network_features(
+    base: Vec<f32>,
+    colour: &[f32],
+    frames: usize,
+    pixels: usize,
+    inputs: &InputConfig,
+    exposure: f32,
+) -> Vec<f32> {
+    if inputs.is_base() {
+        return base;
+    }
+    let n = pixels;
+    let c = inputs.channels();
+    debug_assert_eq!(base.len(), frames * INPUT_CHANNELS * n);
+    debug_assert_eq!(colour.len(), frames * 3 * n);
+    let mut out = Vec::with_capacity(frames * c * n);
+    let inv = 1.0 / exposure;
+    for k in 0..frames {
+        let b = &base[k * INPUT_CHANNELS * n..(k + 1) * INPUT_CHANNELS * n];
+        if inputs.exposure {
+            let col = &colour[k * 3 * n..(k + 1) * 3 * n];
+            out.extend(col.iter().map(|&v| (v.max(0.0) * inv).ln_1p()));
+            out.extend_from_slice(&b[3 * n..]);
+        } else {
+            out.extend_from_slice(b);
+        }
+        if inputs.noise {
+            out.extend(std::iter::repeat_n(0.0, n));
+        }
+    }
+    if inputs.noise {
+        let at = |k: usize, ch: usize, p: usize| (k * c + ch) * n + p;
+        // per frame: (log luminance, confidence) of the pixel
+        let mut lw = vec![(0.0f32, 0.0f32); frames];
+        for p in 0..n {
+            let (mut sw, mut sww, mut swl) = (0.0f32, 0.0f32, 0.0f32);
+            for (k, lw) in lw.iter_mut().enumerate() {
+                let l = (out[at(k, 0, p)] + out[at(k, 1, p)] + out[at(k, 2, p)]) / 3.0;
+                let w = out[at(k, INPUT_CHANNELS - 1, p)].clamp(0.0, 1.0);
+                *lw = (l, w);
+                sw += w;
+                sww += w * w;
+                swl += w * l;
+            }
+            let mut sd = 0.0;
+            if sw > 0.0 {
+                let mean = swl / sw;
+                let spread = lw.iter().map(|&(l, w)| w * (l - mean).powi(2)).sum::<f32>() / sw;
+                let n_eff = sw * sw / sww.max(f32::MIN_POSITIVE);
+                if n_eff > 1.5 {
+                    sd = (spread * n_eff / (n_eff - 1.0)).sqrt();
+                }
+            }
+            for k in 0..frames {
+                out[at(k, INPUT_CHANNELS, p)] = sd;
+            }
+        }
+    }
+    out
+}
+
 /// The linear beauty of every frame, `[T, 3, H, W]`.
 pub fn color_values(win: &AlignedWindow) -> Vec<f32> {
     win.frames
@@ -130,4 +246,142 @@ pub fn plane_values(
         .iter()
         .flat_map(|f| pick(f).data().iter().copied())
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Standard normal draws from a fixed seed (Box–Muller on a SplitMix stream).
+    fn normals(seed: u64, n: usize) -> Vec<f32> {
+        let mut rng = crate::train::dataset::SplitMix(seed);
+        let mut uniform = move || ((rng.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        (0..n)
+            .map(|_| {
+                let (a, b) = (uniform(), uniform());
+                ((-2.0 * a.ln()).sqrt() * (std::f64::consts::TAU * b).cos()) as f32
+            })
+            .collect()
+    }
+
+    /// Base features (zero but for confidence `conf(frame)`) and grey colour whose
+    /// exposure-normalised log luminance is `mu + sigma·z` per frame and pixel.
+    fn window(
+        frames: usize,
+        n: usize,
+        mu: f32,
+        sigma: f32,
+        exposure: f32,
+        conf: impl Fn(usize) -> f32,
+    ) -> (Vec<f32>, Vec<f32>) {
+        let z = normals(7, frames * n);
+        let mut base = vec![0.0; frames * INPUT_CHANNELS * n];
+        let mut colour = Vec::with_capacity(frames * 3 * n);
+        for k in 0..frames {
+            base[(k * INPUT_CHANNELS + INPUT_CHANNELS - 1) * n..][..n].fill(conf(k));
+            for _ in 0..3 {
+                colour.extend((0..n).map(|p| exposure * ((mu + sigma * z[k * n + p]).exp() - 1.0)));
+            }
+        }
+        (base, colour)
+    }
+
+    const BOTH: InputConfig = InputConfig {
+        exposure: true,
+        noise: true,
+    };
+
+    /// The noise channel (the same in every frame) of `network_features`' output.
+    fn noise_channel(out: &[f32], n: usize) -> &[f32] {
+        &out[INPUT_CHANNELS * n..(INPUT_CHANNELS + 1) * n]
+    }
+
+    #[test]
+    fn the_noise_estimate_is_the_spread_of_the_trusted_frames() {
+        let n = 4096;
+        let (sigma, mu) = (0.2f32, 1.0f32);
+        let (base, colour) = window(5, n, mu, sigma, 0.5, |_| 1.0);
+        let out = network_features(base, &colour, 5, n, &BOTH, 0.5);
+        assert_eq!(out.len(), 5 * 12 * n);
+        let mean = noise_channel(&out, n).iter().sum::<f32>() / n as f32;
+        // E[s] of 5 normal samples is c4(5)·σ = 0.9400·σ
+        let expected = 0.9400 * sigma;
+        assert!(
+            (mean - expected).abs() < 0.03 * expected,
+            "{mean} vs {expected}"
+        );
+        for k in 1..5 {
+            assert_eq!(
+                &out[(k * 12 + 11) * n..(k * 12 + 12) * n],
+                noise_channel(&out, n),
+                "every frame carries the window's estimate"
+            );
+        }
+        // without noise the estimate is zero
+        let (base, colour) = window(5, 64, mu, 0.0, 0.5, |_| 1.0);
+        let out = network_features(base, &colour, 5, 64, &BOTH, 0.5);
+        assert!(noise_channel(&out, 64).iter().all(|&s| s < 1e-6));
+    }
+
+    #[test]
+    fn untrusted_frames_do_not_count() {
+        let n = 256;
+        // frame 0 is misaligned (confidence 0) and wildly different
+        let (base, mut colour) = window(5, n, 1.0, 0.2, 1.0, |k| if k == 0 { 0.0 } else { 1.0 });
+        colour[..3 * n].fill(1000.0);
+        let out = network_features(base.clone(), &colour, 5, n, &BOTH, 1.0);
+        // the same as the four trusted frames alone
+        let four = network_features(
+            base[INPUT_CHANNELS * n..].to_vec(),
+            &colour[3 * n..],
+            4,
+            n,
+            &BOTH,
+            1.0,
+        );
+        for (a, b) in noise_channel(&out, n).iter().zip(noise_channel(&four, n)) {
+            assert!((a - b).abs() < 1e-5, "{a} vs {b}");
+        }
+        // only the centre trusted: nothing to estimate from, zero
+        let (base, colour) = window(5, n, 1.0, 0.2, 1.0, |k| if k == 2 { 1.0 } else { 0.0 });
+        let out = network_features(base, &colour, 5, n, &BOTH, 1.0);
+        assert!(noise_channel(&out, n).iter().all(|&s| s == 0.0));
+    }
+
+    #[test]
+    fn exposure_normalised_features_do_not_see_the_hdr_scale() {
+        let n = 512;
+        let (base, colour) = window(5, n, 0.7, 0.3, 0.25, |k| 0.5 + 0.1 * k as f32);
+        let brighter: Vec<f32> = colour.iter().map(|v| v * 8.0).collect();
+        let a = network_features(base.clone(), &colour, 5, n, &BOTH, 0.25);
+        let b = network_features(base.clone(), &brighter, 5, n, &BOTH, 2.0);
+        for (i, (x, y)) in a.iter().zip(&b).enumerate() {
+            assert!((x - y).abs() < 1e-5, "feature {i}: {x} vs {y}");
+        }
+        // the base log colour does see it
+        let log = |c: &[f32]| c.iter().map(|v| v.ln_1p()).collect::<Vec<f32>>();
+        let moved = log(&colour)
+            .iter()
+            .zip(log(&brighter))
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1.0, "{moved}");
+        // base features pass through untouched
+        let plain = network_features(base.clone(), &colour, 5, n, &InputConfig::default(), 0.25);
+        assert_eq!(plain, base);
+    }
+
+    #[test]
+    fn exposure_is_the_log_average_luminance() {
+        let win_colour =
+            |v: f32| radn_core::Plane::from_fn(4, 2, 3, move |x, _, _| v * (1 + x) as f32);
+        let key = |p: &radn_core::Plane| log_average_luminance(add_log_luminance(p, (0.0, 0)));
+        // geometric mean of 1, 2, 3, 4 (twice): 24^(1/4)
+        let e = key(&win_colour(1.0));
+        assert!((e - 24f32.powf(0.25)).abs() < 1e-5, "{e}");
+        // it scales with the frame, exactly for a power of two
+        assert!((key(&win_colour(8.0)) - 8.0 * e).abs() < 1e-5 * e);
+        // black frames have exposure 1
+        assert_eq!(key(&win_colour(0.0)), 1.0);
+    }
 }

@@ -16,8 +16,7 @@ use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
 use radn_core::Plane;
 
-use crate::infer::input::{depth_scale, features_in, Region};
-use crate::model::config::INPUT_CHANNELS;
+use crate::infer::input::{network_input, FeatureScales, Region};
 use crate::model::demod::{filter, Demodulation};
 use crate::model::Denoiser;
 
@@ -55,16 +54,16 @@ impl NetworkDenoiser {
     /// Denoises an aligned window: colour, then every AOV and alpha with the same kernels.
     pub fn denoise_aligned(&self, win: &AlignedWindow) -> Denoised {
         let h = win.centre().color.height();
-        self.denoise_rows(win, depth_scale(win), 0..h)
+        self.denoise_rows(win, FeatureScales::of(win), 0..h)
     }
 
-    /// Denoises rows `rows` of an aligned window (a band of a frame, whose mean depth is
-    /// `depth_ref`); rows beyond the window's own are never read, so a band must carry the
+    /// Denoises rows `rows` of an aligned window (a band of a frame whose whole-frame
+    /// feature scales are `scales`); rows beyond the window's own are never read, so a band must carry the
     /// receptive field's rows around `rows` unless they are the frame's edge.
     pub fn denoise_rows(
         &self,
         win: &AlignedWindow,
-        depth_ref: f32,
+        scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
         let c = win.centre();
@@ -101,7 +100,7 @@ impl NetworkDenoiser {
             at += n;
         }
         let eps = self.denoiser.config.demodulate;
-        let out = self.run_tiled(win, depth_ref, rows, values, chans, |p, v, x| {
+        let out = self.run_tiled(win, scales, rows, values, chans, |p, v, x| {
             let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
             filter(p, v, demod.as_ref())
         });
@@ -127,7 +126,7 @@ impl NetworkDenoiser {
         let t = win.frames.len();
         let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
         let h = win.centre().color.height();
-        let mass = self.run_tiled(win, depth_scale(win), 0..h, zeros, 1, |p, _, _| {
+        let mass = self.run_tiled(win, FeatureScales::of(win), 0..h, zeros, 1, |p, _, _| {
             p.frame_mass(t)
         });
         (0..t).map(|k| mass.select_channels(k, 1)).collect()
@@ -142,7 +141,7 @@ impl NetworkDenoiser {
     fn run_tiled(
         &self,
         win: &AlignedWindow,
-        depth_ref: f32,
+        scales: FeatureScales,
         rows: Range<usize>,
         values: impl Fn(Region) -> Vec<f32>,
         chans: usize,
@@ -153,9 +152,7 @@ impl NetworkDenoiser {
         let mut out: Option<Plane> = None;
         for call in batches(&tiles, self.batch) {
             let group = &tiles[call];
-            self.run_group(
-                win, depth_ref, group, &values, chans, &f, &mut out, w, &rows,
-            );
+            self.run_group(win, scales, group, &values, chans, &f, &mut out, w, &rows);
         }
         out.expect("at least one tile")
     }
@@ -202,7 +199,7 @@ impl NetworkDenoiser {
     fn run_group(
         &self,
         win: &AlignedWindow,
-        depth_ref: f32,
+        scales: FeatureScales,
         group: &[Tile],
         values: &impl Fn(Region) -> Vec<f32>,
         chans: usize,
@@ -217,11 +214,16 @@ impl NetworkDenoiser {
         let mut feats = Vec::new();
         let mut vals = Vec::new();
         for tile in group {
-            feats.extend(features_in(win, depth_ref, tile.region));
+            feats.extend(network_input(
+                win,
+                scales,
+                tile.region,
+                &self.denoiser.config.inputs,
+            ));
             vals.extend(values(tile.region));
         }
         let x = Tensor::<5>::from_data(
-            TensorData::new(feats, [b, t, INPUT_CHANNELS, rh, rw]),
+            TensorData::new(feats, [b, t, self.denoiser.config.input_channels(), rh, rw]),
             &self.device,
         );
         let v = Tensor::<5>::from_data(TensorData::new(vals, [b, t, chans, rh, rw]), &self.device);
@@ -305,7 +307,11 @@ impl BandDenoiser for NetworkDenoiser {
         centre: &FrameStats,
     ) -> radn_core::Result<Denoised> {
         let win = align_bands(window, &self.align);
-        Ok(self.denoise_rows(&win, centre.mean_depth(), out))
+        let scales = FeatureScales {
+            depth: centre.mean_depth(),
+            exposure: centre.exposure(),
+        };
+        Ok(self.denoise_rows(&win, scales, out))
     }
 }
 

@@ -8,8 +8,8 @@ use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
 
-use crate::model::config::{Backbone, INPUT_CHANNELS};
-use crate::model::layers::{conv3, conv_flops, DoubleConv, ResBlock};
+use crate::model::config::Backbone;
+use crate::model::layers::{conv3, conv_flops, widen_conv_input, DoubleConv, ResBlock};
 use crate::model::ra_block::RobustAverage;
 
 /// The paper's ResNet (Fig. 1), with RA blocks after chosen residual blocks and skip
@@ -25,8 +25,10 @@ pub struct ResNet {
 }
 
 impl ResNet {
-    /// Builds the network; `frames = 0` builds it without RA blocks.
+    /// Builds the network over `cin` input channels per frame; `frames = 0` builds it without
+    /// RA blocks.
     pub fn new(
+        cin: usize,
         blocks: usize,
         width: usize,
         ra_after: &[usize],
@@ -35,7 +37,7 @@ impl ResNet {
         device: &Device,
     ) -> Self {
         Self {
-            input: conv3(INPUT_CHANNELS, width, device),
+            input: conv3(cin, width, device),
             blocks: (0..blocks).map(|_| ResBlock::new(width, device)).collect(),
             ra: ra_after
                 .iter()
@@ -74,7 +76,7 @@ impl ResNet {
         v
     }
 
-    /// `[batch · frames, INPUT_CHANNELS, H, W]` → head features.
+    /// `[batch · frames, input channels, H, W]` → head features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         let mut h = relu(self.input.forward(x));
         let mut skips = Vec::new();
@@ -104,10 +106,11 @@ pub struct UNet {
 }
 
 impl UNet {
-    /// Builds the network over `frames` frames (`0`: without RA blocks).
-    pub fn new(widths: &[usize], frames: usize, device: &Device) -> Self {
+    /// Builds the network over `cin` input channels and `frames` frames (`0`: without RA
+    /// blocks).
+    pub fn new(cin: usize, widths: &[usize], frames: usize, device: &Device) -> Self {
         let mut down = Vec::new();
-        let mut cin = INPUT_CHANNELS;
+        let mut cin = cin;
         for &w in widths {
             down.push(DoubleConv::new(cin, w, device));
             cin = w;
@@ -212,8 +215,9 @@ pub enum FrameNet {
 }
 
 impl FrameNet {
-    /// Builds the configured backbone; `with_ra = false` leaves the RA blocks out.
-    pub fn new(cfg: &Backbone, frames: usize, with_ra: bool, device: &Device) -> Self {
+    /// Builds the configured backbone over `cin` input channels per frame; `with_ra = false`
+    /// leaves the RA blocks out.
+    pub fn new(cfg: &Backbone, cin: usize, frames: usize, with_ra: bool, device: &Device) -> Self {
         let f = if with_ra { frames } else { 0 };
         match cfg {
             Backbone::Resnet {
@@ -227,9 +231,9 @@ impl FrameNet {
                 } else {
                     (&[], &[])
                 };
-                FrameNet::ResNet(ResNet::new(*blocks, *width, ra, skips, f, device))
+                FrameNet::ResNet(ResNet::new(cin, *blocks, *width, ra, skips, f, device))
             }
-            Backbone::Unet { widths } => FrameNet::UNet(UNet::new(widths, f, device)),
+            Backbone::Unet { widths } => FrameNet::UNet(UNet::new(cin, widths, f, device)),
         }
     }
 
@@ -278,6 +282,15 @@ impl FrameNet {
         match self {
             FrameNet::ResNet(n) => n.forward(x),
             FrameNet::UNet(n) => n.forward(x),
+        }
+    }
+
+    /// Gives the first layer `cin` input channels, the new ones with zero weights
+    /// ([`widen_conv_input`]).
+    pub fn widen_input(&mut self, cin: usize, device: &Device) {
+        match self {
+            FrameNet::ResNet(n) => widen_conv_input(&mut n.input, cin, device),
+            FrameNet::UNet(n) => n.down[0].widen_input(cin, device),
         }
     }
 }

@@ -85,6 +85,10 @@ pub struct NetConfig {
     /// ([`crate::model::multiscale`]). `None` or 1: one full-resolution kernel per pixel.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kernel_scales: Option<usize>,
+    /// Optional input features beyond the base ones ([`INPUT_CHANNELS`]): exposure
+    /// normalisation and a per-pixel noise estimate. Absent in models from before them.
+    #[serde(default, skip_serializing_if = "InputConfig::is_base")]
+    pub inputs: InputConfig,
     /// The backbone.
     pub backbone: Backbone,
 }
@@ -98,9 +102,39 @@ const PRESETS: &[(&str, &str)] = &[
     ("spatial", include_str!("../../presets/spatial.toml")),
 ];
 
-/// Number of input channels per frame: log colour (3), albedo (3), normal (3), depth (1),
-/// confidence (1).
+/// Number of base input channels per frame: log colour (3), albedo (3), normal (3), depth (1),
+/// confidence (1). Tiles store these; [`InputConfig`] derives the network's own from them.
 pub const INPUT_CHANNELS: usize = 11;
+
+/// Input features a network may ask for beyond the base ones (issue 18, point 5). Both are
+/// computed from the window alone, the same way at training and at inference
+/// ([`crate::infer::input::network_features`]).
+#[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
+#[serde(deny_unknown_fields)]
+pub struct InputConfig {
+    /// Divide colour by the centre frame's log-average luminance (its exposure) before the
+    /// log transform, so that the kernels do not depend on the HDR scale of the shot: the same
+    /// frames rendered twice as bright get exactly the same kernels.
+    #[serde(default)]
+    pub exposure: bool,
+    /// Append a per-pixel noise estimate: the spread of the (exposure-normalised) log
+    /// luminance across the window's frames, each weighted by its alignment confidence. It
+    /// tells the network how much of what it sees is noise, at every input level.
+    #[serde(default)]
+    pub noise: bool,
+}
+
+impl InputConfig {
+    /// True for the base features only (models from before these options).
+    pub fn is_base(&self) -> bool {
+        !self.exposure && !self.noise
+    }
+
+    /// Channels per frame the network reads.
+    pub fn channels(&self) -> usize {
+        INPUT_CHANNELS + usize::from(self.noise)
+    }
+}
 
 impl NetConfig {
     /// Names of the built-in presets.
@@ -195,6 +229,11 @@ impl NetConfig {
             }
         }
         Ok(())
+    }
+
+    /// Channels per frame the network reads.
+    pub fn input_channels(&self) -> usize {
+        self.inputs.channels()
     }
 
     /// K: weights per output pixel (kernel taps over all frames the kernel covers).

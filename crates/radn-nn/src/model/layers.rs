@@ -13,6 +13,23 @@ pub fn conv3(cin: usize, cout: usize, device: &Device) -> Conv2d {
         .init(device)
 }
 
+/// Gives `conv` `cin` input channels: the ones it has keep their weights, the new ones start
+/// at zero, so the layer computes exactly what it did until training moves them (a fine-tune
+/// that adds input features starts from the model it grows). Fewer channels drop the last.
+pub fn widen_conv_input(conv: &mut Conv2d, cin: usize, device: &Device) {
+    let w = conv.weight.val();
+    let [cout, have, kh, kw] = w.dims();
+    let w = if cin >= have {
+        Tensor::cat(
+            vec![w, Tensor::zeros([cout, cin - have, kh, kw], device)],
+            1,
+        )
+    } else {
+        w.narrow(1, 0, cin)
+    };
+    conv.weight = burn::module::Param::from_tensor(w);
+}
+
 /// Forward FLOPs of a stride-1, same-size convolution on a map of `pixels` pixels
 /// (multiply-adds count 2), from the shape of its weights (read without initialising them).
 pub fn conv_flops(conv: &Conv2d, pixels: usize) -> f64 {
@@ -83,6 +100,11 @@ impl DoubleConv {
     /// Applies the block.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         relu(self.b.forward(relu(self.a.forward(x))))
+    }
+
+    /// Gives the block `cin` input channels ([`widen_conv_input`]).
+    pub fn widen_input(&mut self, cin: usize, device: &Device) {
+        widen_conv_input(&mut self.a, cin, device);
     }
 
     /// Forward FLOPs on a map of `pixels` pixels.

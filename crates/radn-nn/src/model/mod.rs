@@ -21,7 +21,7 @@ use burn::tensor::activation::{relu, sigmoid, softmax};
 use burn::tensor::{Device, Tensor};
 
 use crate::model::backbone::FrameNet;
-use crate::model::config::{Arch, NetConfig, INPUT_CHANNELS};
+use crate::model::config::{Arch, InputConfig, NetConfig};
 use crate::model::kernel::{eta, Kernels};
 use crate::model::layers::{conv3, conv_flops};
 use crate::model::multiscale::{downsample, pad_to, padded_size, MultiScaleKernels};
@@ -140,6 +140,7 @@ impl Denoiser {
     pub fn new(config: NetConfig, device: &Device) -> Self {
         let k2 = config.kernel_size * config.kernel_size;
         let t = config.frames;
+        let cin = config.input_channels();
         let scale = config.head_init.unwrap_or(DEFAULT_HEAD_INIT);
         // raw weights all 2/K: above the default threshold 1/(2K), so η gives a box
         let box_bias = 2.0 / config.kernel_taps() as f32;
@@ -147,7 +148,7 @@ impl Denoiser {
             |backbone: &FrameNet| box_head(backbone.out_channels(), k2, box_bias, scale, device);
         let net = match config.arch {
             Arch::Ra => {
-                let backbone = FrameNet::new(&config.backbone, t, true, device);
+                let backbone = FrameNet::new(&config.backbone, cin, t, true, device);
                 let head = kernel_head(&backbone);
                 let scales = config.scales();
                 let coarse_heads = (1..scales).map(|_| kernel_head(&backbone)).collect();
@@ -162,7 +163,7 @@ impl Denoiser {
                 })
             }
             Arch::Tkpcn => {
-                let backbone = FrameNet::new(&config.backbone, t, false, device);
+                let backbone = FrameNet::new(&config.backbone, cin, t, false, device);
                 let c = backbone.out_channels();
                 Network::Tkpcn(TKpcn {
                     spatial_head: box_head(c, k2, 0.0, scale, device),
@@ -173,7 +174,7 @@ impl Denoiser {
                 })
             }
             Arch::Spatial => {
-                let backbone = FrameNet::new(&config.backbone, t, false, device);
+                let backbone = FrameNet::new(&config.backbone, cin, t, false, device);
                 let head = kernel_head(&backbone);
                 Network::Spatial(SpatialKpcn { backbone, head })
             }
@@ -203,6 +204,21 @@ impl Denoiser {
         }
         self.config.kernel_scales = (scales > 1).then_some(scales);
         Ok(self)
+    }
+
+    /// The same network reading the input features `inputs`: the first layer gains (or drops)
+    /// the channels that differ, new ones with zero weights, so the grown network first
+    /// computes what the old one did on the features both share. A fine-tune that adds the
+    /// noise estimate starts from the model it grows.
+    pub fn with_inputs(mut self, inputs: InputConfig, device: &Device) -> Self {
+        let cin = inputs.channels();
+        match &mut self.net {
+            Network::Ra(n) => n.backbone.widen_input(cin, device),
+            Network::Tkpcn(n) => n.backbone.widen_input(cin, device),
+            Network::Spatial(n) => n.backbone.widen_input(cin, device),
+        }
+        self.config.inputs = inputs;
+        self
     }
 
     /// Draws every parameter's initial value now. burn initialises parameters lazily, on first
@@ -356,7 +372,8 @@ impl Denoiser {
         }
     }
 
-    /// Predicts kernels for windows `[B, T, INPUT_CHANNELS, H, W]` with threshold `t`.
+    /// Predicts kernels for windows `[B, T, C, H, W]` (`C` = [`NetConfig::input_channels`],
+    /// made by [`crate::infer::input::network_features`]) with threshold `t`.
     pub fn predict(&self, input: Tensor<5>, t: f32) -> Prediction {
         let [b, frames, c, h, w] = input.dims();
         assert_eq!(
@@ -365,8 +382,10 @@ impl Denoiser {
             self.config.frames
         );
         assert_eq!(
-            c, INPUT_CHANNELS,
-            "expected {INPUT_CHANNELS} input channels"
+            c,
+            self.config.input_channels(),
+            "expected {} input channels",
+            self.config.input_channels()
         );
         let k = self.config.kernel_size;
         let k2 = k * k;
@@ -508,6 +527,7 @@ impl Prediction {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::model::config::INPUT_CHANNELS;
     use burn::tensor::TensorData;
 
     #[test]
@@ -628,6 +648,37 @@ mod tests {
         // the grown network's blend starts small but not at zero: the coarse scales take part
         let diff: f32 = (blended - got).abs().max().into_scalar();
         assert!(diff > 0.0, "{diff}");
+    }
+
+    #[test]
+    fn a_network_grown_to_read_the_noise_estimate_first_computes_what_it_did() {
+        let device = Device::flex();
+        let (h, w) = (8, 12);
+        for preset in ["small", "unet"] {
+            let old = Denoiser::new(NetConfig::preset(preset).unwrap(), &device);
+            let inputs = InputConfig {
+                exposure: false,
+                noise: true,
+            };
+            let grown = old.clone().with_inputs(inputs, &device);
+            assert_eq!(grown.config.input_channels(), INPUT_CHANNELS + 1);
+            let x = window(1, 5, h, w, &device);
+            // any noise channel: its weights start at zero
+            let noise = Tensor::<5>::ones([1, 5, 1, h, w], &device) * 0.3;
+            let x_grown = Tensor::cat(vec![x.clone(), noise], 2);
+            let values = Tensor::<5>::ones([1, 5, 3, h, w], &device) + x.clone().narrow(2, 0, 3);
+            let t = old.config.default_threshold();
+            let want = old.predict(x, t).apply(values.clone());
+            let got = grown.predict(x_grown, t).apply(values);
+            assert_eq!(
+                got.to_data().try_to_vec::<f32>().unwrap(),
+                want.to_data().try_to_vec::<f32>().unwrap(),
+                "{preset}"
+            );
+            // and back: dropping the channel gives the old network
+            let back = grown.with_inputs(InputConfig::default(), &device);
+            assert_eq!(back.config, old.config);
+        }
     }
 
     #[test]

@@ -2,9 +2,12 @@
 //! levels, pre-warped with confidence, cut into square tiles and stored as fixed-size half-float
 //! records in shards, so training reads them without decoding or aligning EXRs again.
 //!
-//! One record holds, for each input level (`high`, `half`, `low`), the window's network
-//! features `[T, INPUT_CHANNELS, S, S]` and linear colour `[T, 3, S, S]`, then the centre
-//! frame's colour `[3, S, S]` for each target level (`high`, `half`, `low`, `pseudo`).
+//! One record holds a header (flags; from format 2 on, each input level's exposure), then, for
+//! each input level (`high`, `half`, `low`), the window's base network features
+//! `[T, INPUT_CHANNELS, S, S]` and linear colour `[T, 3, S, S]`, then the centre frame's colour
+//! `[3, S, S]` for each target level (`high`, `half`, `low`, `pseudo`). What a network reads
+//! beyond the base features is derived from these at training time
+//! ([`crate::infer::input::network_features`]).
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -19,7 +22,7 @@ use radn_core::window::WindowReader;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
-use crate::infer::input::{color_values, features};
+use crate::infer::input::{color_values, features, FeatureScales};
 use crate::model::config::INPUT_CHANNELS;
 
 /// Levels a network input can come from, least noisy first.
@@ -27,7 +30,17 @@ pub const INPUT_LEVELS: [&str; 3] = ["high", "half", "low"];
 /// Levels a target can come from, least noisy last: the pseudo-reference is the cleanest.
 pub const TARGET_LEVELS: [&str; 4] = ["high", "half", "low", "pseudo"];
 const RECORDS_PER_SHARD: usize = 64;
-const HEADER_BYTES: usize = 8;
+/// The tile format `prepare` writes: 2 adds each input level's exposure to the header.
+pub const TILE_FORMAT: u32 = 2;
+
+/// Header bytes of a record: flags (4) and, from format 2, one f32 exposure per input level.
+fn header_bytes(format: u32) -> usize {
+    if format >= 2 {
+        4 + 4 * INPUT_LEVELS.len()
+    } else {
+        8
+    }
+}
 
 /// What `prepare` was asked to do.
 #[derive(Clone, Debug)]
@@ -94,13 +107,16 @@ pub struct Tile {
     pub values: Vec<Vec<f32>>,
     /// Per target level: centre colour `[3, S, S]` (None where that level is missing).
     pub targets: Vec<Option<Vec<f32>>>,
+    /// Per input level: the centre frame's exposure ([`FeatureScales::exposure`]); None in
+    /// tiles of format 1, prepared before it was recorded.
+    pub exposure: Vec<Option<f32>>,
 }
 
-fn record_bytes(tile: usize, frames: usize) -> usize {
+fn record_bytes(tile: usize, frames: usize, format: u32) -> usize {
     let s2 = tile * tile;
     let inputs = INPUT_LEVELS.len() * frames * (INPUT_CHANNELS + 3) * s2;
     let targets = TARGET_LEVELS.len() * 3 * s2;
-    HEADER_BYTES + 2 * (inputs + targets)
+    header_bytes(format) + 2 * (inputs + targets)
 }
 
 /// A small deterministic generator (SplitMix64) for tile positions and training order.
@@ -133,7 +149,7 @@ pub fn prepare(
 ) -> Result<Manifest> {
     let scenes = scene_folders(data, "high")?;
     std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
-    let rb = record_bytes(opts.tile, opts.frames);
+    let rb = record_bytes(opts.tile, opts.frames, TILE_FORMAT);
     let mut writer = ShardWriter::new(out, rb);
     let mut with_pseudo = 0;
     let total: usize = scenes.len();
@@ -169,10 +185,12 @@ pub fn prepare(
         for (k, _) in numbers.iter().enumerate() {
             let mut feats = Vec::new();
             let mut vals = Vec::new();
+            let mut exposures = Vec::new();
             for level in inputs.iter_mut() {
                 let win = level.aligned(k, &AlignParams::default())?;
                 feats.push(features(&win));
                 vals.push(color_values(&win));
+                exposures.push(FeatureScales::of(&win).exposure);
             }
             let (w, h) = *size.get_or_insert_with(|| {
                 let c = inputs[0].frame(k);
@@ -198,7 +216,8 @@ pub fn prepare(
                 SplitMix(opts.seed ^ ((si as u64) << 32) ^ (k as u64).wrapping_mul(0x9E37_79B9));
             for _ in 0..opts.tiles_per_window {
                 let (x0, y0) = (rng.below(w - opts.tile + 1), rng.below(h - opts.tile + 1));
-                writer.write(&encode(opts, w, h, x0, y0, &feats, &vals, &targets))?;
+                let record = encode(opts, (w, h), (x0, y0), &exposures, &feats, &vals, &targets);
+                writer.write(&record)?;
                 if targets[3].is_some() {
                     with_pseudo += 1;
                 }
@@ -208,7 +227,7 @@ pub fn prepare(
     }
     let records = writer.finish()?;
     let manifest = Manifest {
-        format: 1,
+        format: TILE_FORMAT,
         tile: opts.tile,
         frames: opts.frames,
         feature_channels: INPUT_CHANNELS,
@@ -241,22 +260,24 @@ fn io_err(p: &Path, e: std::io::Error) -> NnError {
     }
 }
 
-#[allow(clippy::too_many_arguments)]
+/// One record: the tile at `(x0, y0)` of `w × h` frames.
 fn encode(
     opts: &PrepareOptions,
-    w: usize,
-    h: usize,
-    x0: usize,
-    y0: usize,
+    (w, h): (usize, usize),
+    (x0, y0): (usize, usize),
+    exposures: &[f32],
     feats: &[Vec<f32>],
     vals: &[Vec<f32>],
     targets: &[Option<&[f32]>],
 ) -> Vec<u8> {
     let s = opts.tile;
-    let mut out = Vec::with_capacity(record_bytes(s, opts.frames));
+    let mut out = Vec::with_capacity(record_bytes(s, opts.frames, TILE_FORMAT));
     let flags: u32 = if targets[3].is_some() { 1 } else { 0 };
     out.extend_from_slice(&flags.to_le_bytes());
-    out.extend_from_slice(&[0u8; HEADER_BYTES - 4]);
+    for e in exposures {
+        out.extend_from_slice(&e.to_le_bytes());
+    }
+    debug_assert_eq!(out.len(), header_bytes(TILE_FORMAT));
     let mut crop = |data: &[f32], planes: usize| {
         for p in 0..planes {
             for y in y0..y0 + s {
@@ -347,7 +368,9 @@ impl TileDataset {
         let manifest: Manifest =
             serde_json::from_str(&text).map_err(|e| err(format!("bad manifest.json ({e})")))?;
         if manifest.feature_channels != INPUT_CHANNELS
-            || manifest.record_bytes != record_bytes(manifest.tile, manifest.frames)
+            || manifest.format > TILE_FORMAT
+            || manifest.record_bytes
+                != record_bytes(manifest.tile, manifest.frames, manifest.format)
         {
             return Err(err(
                 "the manifest does not match this version of radn's tile layout".into(),
@@ -386,7 +409,15 @@ impl TileDataset {
         f.read_exact(&mut buf)
             .map_err(|_| err(format!("record {i} is truncated")))?;
         let flags = u32::from_le_bytes([buf[0], buf[1], buf[2], buf[3]]);
-        let mut pos = HEADER_BYTES;
+        let exposure = (0..m.input_levels.len())
+            .map(|l| {
+                (m.format >= 2).then(|| {
+                    let at = 4 + 4 * l;
+                    f32::from_le_bytes([buf[at], buf[at + 1], buf[at + 2], buf[at + 3]])
+                })
+            })
+            .collect();
+        let mut pos = header_bytes(m.format);
         let mut take = |n: usize| -> Vec<f32> {
             let v = buf[pos..pos + 2 * n]
                 .chunks_exact(2)
@@ -415,6 +446,7 @@ impl TileDataset {
             features,
             values,
             targets,
+            exposure,
         })
     }
 }

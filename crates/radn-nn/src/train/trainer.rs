@@ -14,7 +14,8 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
-use crate::model::config::{NetConfig, INPUT_CHANNELS};
+use crate::infer::input::network_features;
+use crate::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
 use crate::model::demod::Demodulation;
 use crate::model::store;
 use crate::model::Denoiser;
@@ -196,12 +197,15 @@ pub struct Batch {
     pub target: Tensor<4>,
 }
 
-/// Crops and stacks tiles with their chosen (input, target) levels.
+/// Crops and stacks tiles with their chosen (input, target) levels, with the input features
+/// a network configured with `inputs` reads (tiles of format 2 when it asks for exposure
+/// normalisation: [`Trainer::new`] checks).
 pub fn make_batch(
     tiles: &[(Tile, usize, usize, usize, usize)],
     frames: usize,
     tile: usize,
     crop: usize,
+    inputs: &InputConfig,
     device: &Device,
 ) -> Batch {
     let b = tiles.len();
@@ -216,14 +220,30 @@ pub fn make_batch(
         }
     };
     for (tl, input, target, x0, y0) in tiles {
+        let mut base = Vec::with_capacity(frames * INPUT_CHANNELS * crop * crop);
         cut(
             &tl.features[*input],
             frames * INPUT_CHANNELS,
             *x0,
             *y0,
-            &mut f,
+            &mut base,
         );
-        cut(&tl.values[*input], frames * 3, *x0, *y0, &mut v);
+        let mut colour = Vec::with_capacity(frames * 3 * crop * crop);
+        cut(&tl.values[*input], frames * 3, *x0, *y0, &mut colour);
+        let exposure = match tl.exposure[*input] {
+            Some(e) => e,
+            None if inputs.exposure => panic!("exposure normalisation needs format-2 tiles"),
+            None => 1.0,
+        };
+        f.extend(network_features(
+            base,
+            &colour,
+            frames,
+            crop * crop,
+            inputs,
+            exposure,
+        ));
+        v.extend(colour);
         cut(
             tl.targets[*target].as_ref().expect("sampled targets exist"),
             3,
@@ -234,7 +254,7 @@ pub fn make_batch(
     }
     Batch {
         features: Tensor::from_data(
-            TensorData::new(f, [b, frames, INPUT_CHANNELS, crop, crop]),
+            TensorData::new(f, [b, frames, inputs.channels(), crop, crop]),
             device,
         ),
         values: Tensor::from_data(TensorData::new(v, [b, frames, 3, crop, crop]), device),
@@ -255,6 +275,10 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
                 d.config.name, config.name
             ),
         });
+    }
+    if d.config.inputs != config.inputs {
+        // a fine-tune may add input features: their first-layer weights start at zero
+        d = d.with_inputs(config.inputs.clone(), device);
     }
     if d.config.scales() != config.scales() {
         // a fine-tune may add (or drop) kernel scales: the new heads start from the old ones
@@ -312,6 +336,18 @@ impl Trainer {
                 "the network has {} frames, the tiles {}",
                 net_cfg.frames, train.manifest.frames
             )));
+        }
+        if net_cfg.inputs.exposure {
+            for (name, set) in [(&config.train, &train), (&config.val, &val)] {
+                if set.manifest.format < 2 {
+                    return Err(NnError::Load {
+                        path: base.join(name),
+                        detail: "its tiles were prepared before exposures were recorded; \
+                                 the network normalises by exposure: run `radn prepare` again"
+                            .into(),
+                    });
+                }
+            }
         }
         let state_path = out.join("state.json");
         let (denoiser, optim, state) = if resume && state_path.exists() {
@@ -440,7 +476,8 @@ impl Trainer {
             tiles.push((t, input, target, x0, y0));
         }
         let frames = self.train.manifest.frames;
-        let b = make_batch(&tiles, frames, tile, crop, &self.device);
+        let inputs = self.denoiser.config.inputs.clone();
+        let b = make_batch(&tiles, frames, tile, crop, &inputs, &self.device);
         let thr = self.denoiser.config.default_threshold();
         let demod = self.demodulation(&b.features);
         let pred = self.denoiser.predict(b.features, thr);
@@ -505,7 +542,14 @@ impl Trainer {
         for i in 0..n {
             let t = self.val.get(i)?;
             let target = if t.targets[3].is_some() { 3 } else { 0 };
-            let b = make_batch(&[(t, 2, target, 0, 0)], frames, tile, tile, &plain);
+            let b = make_batch(
+                &[(t, 2, target, 0, 0)],
+                frames,
+                tile,
+                tile,
+                &denoiser.config.inputs,
+                &plain,
+            );
             let demod = self.demodulation(&b.features);
             let pred = denoiser.predict(b.features, thr);
             loss += objective(
