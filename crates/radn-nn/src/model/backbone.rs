@@ -96,33 +96,42 @@ impl ResNet {
     }
 }
 
-/// A UNet with an RA block after the encoder block of every scale.
+/// A UNet with an RA block after the encoder block of chosen scales.
 #[derive(Module, Debug)]
 pub struct UNet {
     down: Vec<DoubleConv>,
     ra: Vec<RobustAverage>,
+    /// The scale each RA block follows.
+    ra_at: Vec<usize>,
     up: Vec<DoubleConv>,
     widths: Vec<usize>,
 }
 
 impl UNet {
-    /// Builds the network over `cin` input channels and `frames` frames (`0`: without RA
-    /// blocks).
-    pub fn new(cin: usize, widths: &[usize], frames: usize, device: &Device) -> Self {
+    /// Builds the network over `cin` input channels and `frames` frames, with RA blocks after
+    /// the encoder blocks of scales `ra_at` (none when `frames = 0`).
+    pub fn new(
+        cin: usize,
+        widths: &[usize],
+        ra_at: &[usize],
+        frames: usize,
+        device: &Device,
+    ) -> Self {
         let mut down = Vec::new();
         let mut cin = cin;
         for &w in widths {
             down.push(DoubleConv::new(cin, w, device));
             cin = w;
         }
-        let ra = if frames > 0 {
-            widths
-                .iter()
-                .map(|&w| RobustAverage::new(w, frames, device))
-                .collect()
+        let ra_at = if frames > 0 {
+            ra_at.to_vec()
         } else {
             Vec::new()
         };
+        let ra = ra_at
+            .iter()
+            .map(|&s| RobustAverage::new(widths[s], frames, device))
+            .collect();
         // decoder: from scale s+1 up to s, concatenating the encoder's features of scale s
         let up = (0..widths.len() - 1)
             .rev()
@@ -131,6 +140,7 @@ impl UNet {
         Self {
             down,
             ra,
+            ra_at,
             up,
             widths: widths.to_vec(),
         }
@@ -139,6 +149,11 @@ impl UNet {
     /// Channels of the features handed to the head.
     pub fn out_channels(&self) -> usize {
         self.widths[0]
+    }
+
+    /// The RA block after scale `s`'s encoder block, if it has one.
+    fn ra_of(&self, s: usize) -> Option<&RobustAverage> {
+        self.ra_at.iter().position(|&a| a == s).map(|i| &self.ra[i])
     }
 
     /// Forward FLOPs for one window of `frames` frames of `h × w` pixels (scale s works on
@@ -150,7 +165,7 @@ impl UNet {
             .down
             .iter()
             .enumerate()
-            .map(|(s, b)| t * b.flops(px(s)) + self.ra.get(s).map_or(0.0, |r| r.flops(px(s))))
+            .map(|(s, b)| t * b.flops(px(s)) + self.ra_of(s).map_or(0.0, |r| r.flops(px(s))))
             .sum();
         let up: f64 = self
             .up
@@ -166,7 +181,7 @@ impl UNet {
         let mut v = Vec::new();
         for (s, block) in self.down.iter().enumerate() {
             v.extend(block.weights(&format!("down{s}")));
-            if let Some(ra) = self.ra.get(s) {
+            if let Some(ra) = self.ra_of(s) {
                 v.extend(ra.named_weights(&format!("ra{s}")));
             }
         }
@@ -185,7 +200,7 @@ impl UNet {
                 h = avg_pool2d(h, burn::tensor::ops::AvgPoolOptions::new([2, 2]));
             }
             h = block.forward(h);
-            if let Some(ra) = self.ra.get(s) {
+            if let Some(ra) = self.ra_of(s) {
                 h = ra.forward(h);
             }
             skips.push(h.clone());
@@ -233,7 +248,11 @@ impl FrameNet {
                 };
                 FrameNet::ResNet(ResNet::new(cin, *blocks, *width, ra, skips, f, device))
             }
-            Backbone::Unet { widths } => FrameNet::UNet(UNet::new(cin, widths, f, device)),
+            Backbone::Unet { widths, ra_scales } => {
+                let all: Vec<usize> = (0..widths.len()).collect();
+                let at = ra_scales.as_deref().unwrap_or(&all);
+                FrameNet::UNet(UNet::new(cin, widths, at, f, device))
+            }
         }
     }
 

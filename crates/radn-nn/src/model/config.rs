@@ -42,10 +42,15 @@ pub enum Backbone {
         /// Feed the outputs of these RA blocks (1-based among the RA blocks) to the head.
         skips_from: Vec<usize>,
     },
-    /// A UNet; an RA block follows the encoder block of every scale.
+    /// A UNet; an RA block follows the encoder block of every scale in `ra_scales`.
     Unet {
         /// Channels per scale, finest first.
         widths: Vec<usize>,
+        /// The scales (0 = full resolution) whose encoder block an RA block follows, in
+        /// increasing order. `None`: every scale. At a coarse scale an RA block costs 1/4^s of
+        /// a full-resolution one and compares frames over a wider context.
+        #[serde(default, skip_serializing_if = "Option::is_none")]
+        ra_scales: Option<Vec<usize>>,
     },
 }
 
@@ -201,9 +206,20 @@ impl NetConfig {
                     return bad("only arch = \"ra\" has RA blocks".into());
                 }
             }
-            Backbone::Unet { widths } => {
+            Backbone::Unet { widths, ra_scales } => {
                 if widths.is_empty() || widths.contains(&0) {
                     return bad("unet needs at least one non-zero width".into());
+                }
+                if let Some(r) = ra_scales {
+                    if r.windows(2).any(|p| p[0] >= p[1]) || r.iter().any(|&s| s >= widths.len()) {
+                        return bad(format!(
+                            "ra_scales {r:?} must be increasing scales below {}",
+                            widths.len()
+                        ));
+                    }
+                    if self.arch != Arch::Ra && !r.is_empty() {
+                        return bad("only arch = \"ra\" has RA blocks".into());
+                    }
                 }
             }
         }

@@ -682,6 +682,52 @@ mod tests {
     }
 
     #[test]
+    fn a_unet_places_ra_blocks_at_the_scales_it_names() {
+        let device = Device::flex();
+        let all = NetConfig::preset("unet").unwrap();
+        let mut coarse = all.clone();
+        coarse.backbone = crate::model::config::Backbone::Unet {
+            widths: vec![32, 48, 64],
+            ra_scales: Some(vec![1, 2]),
+        };
+        coarse.validate().unwrap();
+        let (a, c) = (
+            Denoiser::new(all, &device),
+            Denoiser::new(coarse.clone(), &device),
+        );
+        assert_eq!(a.ra_blocks().len(), 3);
+        assert_eq!(c.ra_blocks().len(), 2);
+        // the full-resolution RA block is the one left out: its cost is gone
+        let full_ra = a.ra_blocks()[0].flops(64 * 64);
+        let saved = a.forward_flops(64, 64, 3) - c.forward_flops(64, 64, 3);
+        assert!(
+            (saved - full_ra).abs() < 1e-6 * full_ra,
+            "{saved} vs {full_ra}"
+        );
+        let names: Vec<String> = c.layer_weights().into_iter().map(|(n, _)| n).collect();
+        assert!(
+            names.iter().any(|n| n.starts_with("backbone.ra1")),
+            "{names:?}"
+        );
+        assert!(
+            !names.iter().any(|n| n.starts_with("backbone.ra0")),
+            "{names:?}"
+        );
+        let out = c
+            .predict(window(1, 5, 8, 8, &device), 0.004)
+            .apply(Tensor::ones([1, 5, 3, 8, 8], &device));
+        assert_eq!(out.dims(), [1, 3, 8, 8]);
+        // scales must exist and increase
+        for bad in [vec![3], vec![2, 1]] {
+            coarse.backbone = crate::model::config::Backbone::Unet {
+                widths: vec![32, 48, 64],
+                ra_scales: Some(bad),
+            };
+            assert!(coarse.validate().is_err());
+        }
+    }
+
+    #[test]
     fn paper_preset_parameter_count() {
         let d = Denoiser::new(NetConfig::preset("paper").unwrap(), &Device::flex());
         // 24 residual blocks of two 80→80 3×3 convs, 6 RA blocks, input conv, head over
