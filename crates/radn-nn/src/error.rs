@@ -14,6 +14,9 @@ pub enum NnError {
     /// A model file cannot be read or is not a radn model.
     #[error("cannot load model '{path}': {detail}")]
     Load { path: PathBuf, detail: String },
+    /// A prepared tile folder cannot be read or does not fit the network.
+    #[error("cannot use the training tiles in '{path}': {detail}")]
+    Tiles { path: PathBuf, detail: String },
     /// A model file cannot be written.
     #[error("cannot save model '{path}': {detail}")]
     Save { path: PathBuf, detail: String },

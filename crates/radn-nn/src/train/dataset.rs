@@ -359,7 +359,7 @@ pub struct TileDataset {
 impl TileDataset {
     /// Opens a folder made by [`prepare`].
     pub fn open(dir: &Path) -> Result<Self> {
-        let err = |detail: String| NnError::Load {
+        let err = |detail: String| NnError::Tiles {
             path: dir.to_path_buf(),
             detail,
         };
@@ -396,7 +396,7 @@ impl TileDataset {
     pub fn get(&self, i: usize) -> Result<Tile> {
         let m = &self.manifest;
         let p = shard_path(&self.dir, i / m.records_per_shard);
-        let err = |detail: String| NnError::Load {
+        let err = |detail: String| NnError::Tiles {
             path: p.clone(),
             detail,
         };

@@ -340,9 +340,9 @@ impl Trainer {
         if net_cfg.inputs.exposure {
             for (name, set) in [(&config.train, &train), (&config.val, &val)] {
                 if set.manifest.format < 2 {
-                    return Err(NnError::Load {
+                    return Err(NnError::Tiles {
                         path: base.join(name),
-                        detail: "its tiles were prepared before exposures were recorded; \
+                        detail: "they were prepared before exposures were recorded; \
                                  the network normalises by exposure: run `radn prepare` again"
                             .into(),
                     });
