@@ -27,7 +27,8 @@ pub fn widen_conv_input(conv: &mut Conv2d, cin: usize, device: &Device) {
     } else {
         w.narrow(1, 0, cin)
     };
-    conv.weight = burn::module::Param::from_tensor(w);
+    // a new leaf: a parameter of a training (autodiff) network must not carry a graph
+    conv.weight = burn::module::Param::from_tensor(w.detach());
 }
 
 /// Forward FLOPs of a stride-1, same-size convolution on a map of `pixels` pixels

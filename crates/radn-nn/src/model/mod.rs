@@ -679,6 +679,11 @@ mod tests {
             let back = grown.with_inputs(InputConfig::default(), &device);
             assert_eq!(back.config, old.config);
         }
+        // a fine-tune grows a network on the training (autodiff) device
+        let train = Device::flex().autodiff();
+        let grown = Denoiser::new(NetConfig::preset("small").unwrap(), &train)
+            .with_inputs(InputConfig { exposure: true, noise: true }, &train);
+        grown.materialize();
     }
 
     #[test]
