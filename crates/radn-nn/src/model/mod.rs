@@ -681,8 +681,13 @@ mod tests {
         }
         // a fine-tune grows a network on the training (autodiff) device
         let train = Device::flex().autodiff();
-        let grown = Denoiser::new(NetConfig::preset("small").unwrap(), &train)
-            .with_inputs(InputConfig { exposure: true, noise: true }, &train);
+        let grown = Denoiser::new(NetConfig::preset("small").unwrap(), &train).with_inputs(
+            InputConfig {
+                exposure: true,
+                noise: true,
+            },
+            &train,
+        );
         grown.materialize();
     }
 
