@@ -33,18 +33,19 @@ fn model_reading(dir: &Path, demodulate: Option<f32>, inputs: InputConfig) -> Pa
 
 #[test]
 fn network_denoise_applies_one_kernel_to_beauty_aovs_and_alpha() {
-    // plain kernels, and kernels on albedo-demodulated colour and AOVs (alpha stays plain)
-    for demodulate in [None, Some(0.25)] {
-        one_kernel_for_beauty_aovs_and_alpha(demodulate);
+    // plain kernels, kernels on albedo-demodulated colour and AOVs (alpha stays plain), and
+    // the result blended with the input by one per-pixel weight (--input-blend)
+    for (demodulate, blend) in [(None, false), (Some(0.25), false), (Some(0.25), true)] {
+        one_kernel_for_beauty_aovs_and_alpha(demodulate, blend);
     }
 }
 
-fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>) {
+fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>, input_blend: bool) {
     let d = tempfile::tempdir().unwrap();
     let m = model_with(d.path(), demodulate);
     let input = with_aovs(d.path(), 0.25);
     let out = format!("{}/out/f_####.exr", d.path().display());
-    let res = radn(&[
+    let mut args = vec![
         "denoise",
         "--method",
         "network",
@@ -60,7 +61,11 @@ fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>) {
         "diffuse,specular",
         "--tile",
         "40",
-    ]);
+    ];
+    if input_blend {
+        args.push("--input-blend");
+    }
+    let res = radn(&args);
     assert!(
         res.status.success(),
         "{}",
@@ -217,7 +222,8 @@ fn banded_denoising_equals_whole_frame_denoising() {
     // `--tile N` reads and denoises each frame in bands of N rows, each band from only the rows
     // of its window it reaches; `--tile 0` aligns and denoises whole frames. The network
     // normalises by the frame's exposure and reads the noise estimate: bands use the whole
-    // frame's exposure.
+    // frame's exposure. The result is blended with the input (--input-blend), whose boxes
+    // read rows beyond each band.
     let d = tempfile::tempdir().unwrap();
     let inputs = InputConfig {
         exposure: true,
@@ -243,6 +249,7 @@ fn banded_denoising_equals_whole_frame_denoising() {
             "diffuse,specular",
             "--tile",
             tile,
+            "--input-blend",
         ]);
         // frames 3 and 7 have windows clamped at the sequence's ends
         [3, 5, 7].map(|f| ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap())

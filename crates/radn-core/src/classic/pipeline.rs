@@ -9,7 +9,7 @@ use super::guided::{guided_filter, GuidedParams};
 use super::nlm::{nlm, NlmGuide, NlmParams};
 use super::refine::{refine_motion, RefineParams};
 use super::temporal::{apply_weights, robust_weights, temporal_variance};
-use super::wiener::{blend, blend_weight, BlendParams};
+use super::wiener::{blend, blend_weight, local_variance, BlendParams};
 use crate::align::{align_window, AlignParams};
 use crate::confidence::box3;
 use crate::frame::Frame;
@@ -119,7 +119,7 @@ pub fn denoise_window(window: &[Option<&Frame>], p: &ClassicParams) -> ClassicRe
     // noise variance of the temporal average: from the window's spread where several frames
     // contribute, else from the centre frame's local spread
     let (mut var, _) = temporal_variance(&weights, &colors, &t_color);
-    let spatial = spatial_variance(&centre.color);
+    let spatial = local_variance(&centre.color);
     var.data_mut()
         .par_iter_mut()
         .zip(spatial.data())
@@ -272,20 +272,6 @@ fn features(albedo: Option<&Plane>, normal: Option<&Plane>) -> Option<Plane> {
         (None, Some(n)) => Some(n.clone()),
         (None, None) => None,
     }
-}
-
-/// Per-pixel noise variance of a single noisy image: local mean of the squared difference to
-/// its 3×3 box mean, corrected for the box's own share.
-fn spatial_variance(x: &Plane) -> Plane {
-    let m = box_mean(x, 1);
-    let mut d = x.clone();
-    d.data_mut()
-        .iter_mut()
-        .zip(m.data())
-        .for_each(|(v, mu)| *v = (*v - mu) * (*v - mu));
-    let mut v = box_mean(&d, 2);
-    v.data_mut().iter_mut().for_each(|v| *v *= 9.0 / 8.0);
-    v
 }
 
 /// The classic denoiser as a sequence method: refines each frame's motion once, then denoises

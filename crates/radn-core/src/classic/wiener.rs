@@ -12,6 +12,9 @@
 
 use rayon::prelude::*;
 
+use std::ops::Range;
+
+use crate::align::AlignedWindow;
 use crate::image_ops::box_mean;
 use crate::plane::Plane;
 
@@ -34,6 +37,79 @@ impl Default for BlendParams {
             noise_scale: 2.0,
         }
     }
+}
+
+/// How far [`local_variance`] reads around a pixel (its two boxes), in pixels.
+pub const LOCAL_VARIANCE_RADIUS: usize = 3;
+
+/// A frame's per-pixel, per-channel noise variance from its own neighbourhood: the squared
+/// difference to the 3×3 mean, averaged over 5×5 (and corrected for the 9 samples of the mean).
+/// Detail reads as noise here: it is the fallback where no other frame can be trusted.
+pub fn local_variance(x: &Plane) -> Plane {
+    let m = box_mean(x, 1);
+    let mut d = x.clone();
+    d.data_mut()
+        .iter_mut()
+        .zip(m.data())
+        .for_each(|(v, mu)| *v = (*v - mu) * (*v - mu));
+    let mut v = box_mean(&d, 2);
+    v.data_mut().iter_mut().for_each(|v| *v *= 9.0 / 8.0);
+    v
+}
+
+/// The per-pixel, per-channel noise variance of the centre frame's colour at rows `rows` of an
+/// aligned window: the unbiased spread of the frames' colour, each weighted by its alignment
+/// confidence, where more than one frame carries weight (`Σŵ² ≤ 0.95` with `ŵ` the normalised
+/// confidences); elsewhere [`local_variance`] of the centre frame. It reads the centre frame
+/// [`LOCAL_VARIANCE_RADIUS`] rows beyond `rows` (clamped to the window), so a band of a frame
+/// gets the same values as the whole frame when its window holds those rows.
+pub fn window_noise_variance(win: &AlignedWindow, rows: Range<usize>) -> Plane {
+    let c = win.centre();
+    let h = c.color.height();
+    let wider =
+        rows.start.saturating_sub(LOCAL_VARIANCE_RADIUS)..(rows.end + LOCAL_VARIANCE_RADIUS).min(h);
+    let local = local_variance(&c.color.rows(wider.clone()))
+        .rows(rows.start - wider.start..rows.end - wider.start);
+    let colors: Vec<Plane> = win
+        .frames
+        .iter()
+        .map(|f| f.color.rows(rows.clone()))
+        .collect();
+    let conf: Vec<Plane> = win
+        .frames
+        .iter()
+        .map(|f| f.confidence.rows(rows.clone()))
+        .collect();
+    let n = local.pixels();
+    let mut var = local;
+    var.data_mut()
+        .par_chunks_mut(n)
+        .enumerate()
+        .for_each(|(ch, out)| {
+            for (i, v) in out.iter_mut().enumerate() {
+                let w: Vec<f32> = conf.iter().map(|p| p.data()[i].clamp(0.0, 1.0)).collect();
+                let sw: f32 = w.iter().sum();
+                if sw <= 0.0 {
+                    continue;
+                }
+                let s2: f32 = w.iter().map(|x| (x / sw) * (x / sw)).sum();
+                if s2 > 0.95 {
+                    continue; // one frame alone: keep the local estimate
+                }
+                let mean: f32 = colors
+                    .iter()
+                    .zip(&w)
+                    .map(|(p, x)| x / sw * p.channel(ch)[i])
+                    .sum();
+                let spread: f32 = colors
+                    .iter()
+                    .zip(&w)
+                    .map(|(p, x)| x / sw * (p.channel(ch)[i] - mean).powi(2))
+                    .sum();
+                *v = spread / (1.0 - s2);
+            }
+        });
+    var
 }
 
 /// The per-pixel weight (1 channel, in 0..=1) of `smoothed` over `input`: `input` and

@@ -252,10 +252,15 @@ pub fn plane_values(
 mod tests {
     use super::*;
 
-    /// Standard normal draws from a fixed seed (Box–Muller on a SplitMix stream).
+    /// Standard normal draws from a fixed seed (Box–Muller on a 64-bit LCG's high bits).
     fn normals(seed: u64, n: usize) -> Vec<f32> {
-        let mut rng = crate::train::dataset::SplitMix(seed);
-        let mut uniform = move || ((rng.next_u64() >> 11) as f64 + 0.5) / (1u64 << 53) as f64;
+        let mut state = seed;
+        let mut uniform = move || {
+            state = state
+                .wrapping_mul(6_364_136_223_846_793_005)
+                .wrapping_add(1_442_695_040_888_963_407);
+            ((state >> 11) as f64 + 0.5) / (1u64 << 53) as f64
+        };
         (0..n)
             .map(|_| {
                 let (a, b) = (uniform(), uniform());

@@ -12,6 +12,9 @@ use std::ops::Range;
 
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
+use radn_core::classic::wiener::{
+    blend, blend_weight, window_noise_variance, BlendParams, LOCAL_VARIANCE_RADIUS,
+};
 use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
 use radn_core::Plane;
@@ -35,6 +38,12 @@ pub struct NetworkDenoiser {
     pub device: Device,
     /// Alignment options.
     pub align: AlignParams,
+    /// The refine blend: per pixel, the network's result is blended with the input by the
+    /// classic denoiser's Wiener gain ([`radn_core::classic::wiener`]), so that it keeps only
+    /// the change the input's noise explains and does not average a clean input's detail away.
+    /// The weight is computed from the beauty and applied to every signal (still one linear
+    /// operator per signal; alpha stays in range). `None`: the kernels' result as it is.
+    pub refine: Option<BlendParams>,
 }
 
 impl NetworkDenoiser {
@@ -48,6 +57,7 @@ impl NetworkDenoiser {
             batch: 1,
             device,
             align: AlignParams::default(),
+            refine: None,
         }
     }
 
@@ -66,6 +76,50 @@ impl NetworkDenoiser {
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
+        let out = match &self.refine {
+            None => self.filtered_rows(win, scales, rows.clone()),
+            Some(p) => {
+                // the blend's boxes read the result `radius` rows beyond `rows`
+                let h = win.centre().color.height();
+                let wide = rows.start.saturating_sub(p.radius)..(rows.end + p.radius).min(h);
+                let filtered = self.filtered_rows(win, scales, wide.clone());
+                let input = centre_values(win, wide.clone());
+                let var = window_noise_variance(win, wide.clone());
+                let weight = blend_weight(
+                    &input.select_channels(0, 3),
+                    &filtered.select_channels(0, 3),
+                    &var,
+                    p,
+                );
+                blend(&input, &filtered, &weight)
+                    .rows(rows.start - wide.start..rows.end - wide.start)
+            }
+        };
+        let c = win.centre();
+        let aov_ch: Vec<usize> = c.aovs.iter().map(|a| a.channels()).collect();
+        let has_alpha = c.alpha.is_some();
+        let color = out.select_channels(0, 3);
+        let mut at = 3;
+        let aovs = aov_ch
+            .iter()
+            .map(|&n| {
+                let p = out.select_channels(at, n);
+                at += n;
+                p
+            })
+            .collect();
+        let alpha = has_alpha.then(|| out.select_channels(at, 1));
+        Denoised { color, alpha, aovs }
+    }
+
+    /// The kernels' result for rows `rows` of an aligned window, every signal stacked along
+    /// channels: colour, then each AOV, then alpha.
+    fn filtered_rows(
+        &self,
+        win: &AlignedWindow,
+        scales: FeatureScales,
+        rows: Range<usize>,
+    ) -> Plane {
         let c = win.centre();
         let t = win.frames.len();
         // every signal stacked along channels: colour, AOVs, alpha
@@ -100,22 +154,10 @@ impl NetworkDenoiser {
             at += n;
         }
         let eps = self.denoiser.config.demodulate;
-        let out = self.run_tiled(win, scales, rows, values, chans, |p, v, x| {
+        self.run_tiled(win, scales, rows, values, chans, |p, v, x| {
             let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
             filter(p, v, demod.as_ref())
-        });
-        let color = out.select_channels(0, 3);
-        let mut at = 3;
-        let aovs = aov_ch
-            .iter()
-            .map(|&n| {
-                let p = out.select_channels(at, n);
-                at += n;
-                p
-            })
-            .collect();
-        let alpha = has_alpha.then(|| out.select_channels(at, 1));
-        Denoised { color, alpha, aovs }
+        })
     }
 }
 
@@ -296,8 +338,10 @@ impl BandDenoiser for NetworkDenoiser {
     }
 
     fn halo(&self) -> usize {
-        // the network's receptive field, and the rows banded alignment gets wrong at a cut
-        self.denoiser.receptive_radius().unwrap_or(0) + ALIGNMENT_EDGE_ROWS
+        // the network's receptive field, and the rows banded alignment gets wrong at a cut;
+        // the refine blend reads the result and the centre frame's noise a few rows further
+        let refine = self.refine.map_or(0, |p| p.radius + LOCAL_VARIANCE_RADIUS);
+        self.denoiser.receptive_radius().unwrap_or(0) + ALIGNMENT_EDGE_ROWS + refine
     }
 
     fn denoise_band(
@@ -313,6 +357,16 @@ impl BandDenoiser for NetworkDenoiser {
         };
         Ok(self.denoise_rows(&win, scales, out))
     }
+}
+
+/// The centre frame's signals at rows `rows`, stacked as [`NetworkDenoiser`] filters them:
+/// colour, then each AOV, then alpha.
+fn centre_values(win: &AlignedWindow, rows: Range<usize>) -> Plane {
+    let c = win.centre();
+    let mut planes = vec![c.color.rows(rows.clone())];
+    planes.extend(c.aovs.iter().map(|a| a.rows(rows.clone())));
+    planes.extend(c.alpha.iter().map(|a| a.rows(rows.clone())));
+    Plane::concat(&planes.iter().collect::<Vec<_>>())
 }
 
 #[cfg(test)]
@@ -354,6 +408,53 @@ mod tests {
         .iter()
         .flat_map(|(a, b)| a.data().iter().zip(b.data()).map(|(x, y)| (x - y).abs()))
         .fold(0.0f32, f32::max)
+    }
+
+    #[test]
+    fn the_input_blend_keeps_a_noise_free_input_and_follows_a_noisy_one() {
+        let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+        let mut n = NetworkDenoiser::new(d, Device::flex());
+        n.refine = Some(BlendParams::default());
+        // five identical frames: no noise, so nothing the kernels change is explained by it
+        let mut still = window(24, 20);
+        let centre = still.frames[2].clone();
+        for (k, f) in still.frames.iter_mut().enumerate() {
+            *f = AlignedFrame {
+                offset: k as i32 - 2,
+                ..centre.clone()
+            };
+        }
+        let out = n.denoise_aligned(&still);
+        let off = |a: &Plane, b: &Plane| {
+            a.data()
+                .iter()
+                .zip(b.data())
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0f32, f32::max)
+        };
+        // the input, up to rounding (the frames' spread is not exactly 0 in floats) ...
+        assert!(off(&out.color, &centre.color) < 1e-6);
+        assert!(off(&out.aovs[0], &centre.aovs[0]) < 1e-6);
+        assert!(off(out.alpha.as_ref().unwrap(), centre.alpha.as_ref().unwrap()) < 1e-6);
+        // ... where the kernels alone change it
+        let mut unblended = NetworkDenoiser::new(n.denoiser.clone(), Device::flex());
+        unblended.refine = None;
+        assert!(off(&unblended.denoise_aligned(&still).color, &centre.color) > 0.05);
+        // frames that differ: their spread is noise, and the kernels' result is kept where
+        // its change is no larger
+        let noisy = window(24, 20);
+        let plain = unblended.denoise_aligned(&noisy);
+        let blended = n.denoise_aligned(&noisy);
+        let input = noisy.centre().color.data();
+        let kept = blended
+            .color
+            .data()
+            .iter()
+            .zip(plain.color.data())
+            .zip(input)
+            .filter(|((b, p), x)| (*b - *p).abs() < 1e-6 && (*p - *x).abs() > 1e-3)
+            .count();
+        assert!(kept > input.len() / 4, "{kept} of {}", input.len());
     }
 
     #[test]

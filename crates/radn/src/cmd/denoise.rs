@@ -73,6 +73,18 @@ pub struct Args {
     /// Network: kernel threshold t (paper eq. 3); higher keeps more of the input. Default: the model's.
     #[arg(long)]
     pub threshold: Option<f32>,
+    /// Network: blend the result with the input per pixel by the Wiener gain of the change
+    /// against the input's noise (the classic denoiser's guided blend), so that detail the
+    /// noise does not explain is kept from the input.
+    #[arg(long)]
+    pub input_blend: bool,
+    /// Network, with --input-blend: how many noise variances of change are still taken as
+    /// noise (larger keeps more of the network's result).
+    #[arg(long, default_value_t = 2.0, requires = "input_blend")]
+    pub input_blend_noise_scale: f32,
+    /// Network, with --input-blend: radius of the box the change and the noise are compared over.
+    #[arg(long, default_value_t = 1, requires = "input_blend")]
+    pub input_blend_radius: usize,
     /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
     /// the result does not depend on it). Frames are also read, aligned and written in bands of
     /// this many rows, so memory follows the tile, not the frame; 0 processes whole frames.
@@ -228,5 +240,11 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     }
     n.tile = a.tile;
     n.batch = a.batch as usize;
+    if a.input_blend {
+        n.refine = Some(radn_core::classic::wiener::BlendParams {
+            radius: a.input_blend_radius,
+            noise_scale: a.input_blend_noise_scale,
+        });
+    }
     Ok(n)
 }
