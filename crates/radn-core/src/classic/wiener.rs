@@ -15,6 +15,7 @@ use rayon::prelude::*;
 use std::ops::Range;
 
 use crate::align::AlignedWindow;
+use crate::classic::temporal::{apply_weights, temporal_variance};
 use crate::image_ops::box_mean;
 use crate::plane::Plane;
 
@@ -75,38 +76,38 @@ pub fn window_noise_variance(win: &AlignedWindow, rows: Range<usize>) -> Plane {
         .iter()
         .map(|f| f.color.rows(rows.clone()))
         .collect();
-    let conf: Vec<Plane> = win
+    // normalised confidences (all weight on the centre where no frame is trusted)
+    let mut weights: Vec<Plane> = win
         .frames
         .iter()
         .map(|f| f.confidence.rows(rows.clone()))
         .collect();
+    let centre = win.frames.len() / 2;
+    for i in 0..local.pixels() {
+        let sum: f32 = weights.iter().map(|w| w.data()[i].clamp(0.0, 1.0)).sum();
+        for (k, w) in weights.iter_mut().enumerate() {
+            let v = &mut w.data_mut()[i];
+            *v = if sum > 0.0 {
+                v.clamp(0.0, 1.0) / sum
+            } else {
+                f32::from(u8::from(k == centre))
+            };
+        }
+    }
+    let refs: Vec<&Plane> = colors.iter().collect();
+    let mean = apply_weights(&weights, &refs);
+    // the variance of the weighted mean, over Σŵ², is the samples' own variance
+    let (of_mean, sum_w2) = temporal_variance(&weights, &refs, &mean);
     let n = local.pixels();
     let mut var = local;
     var.data_mut()
         .par_chunks_mut(n)
-        .enumerate()
-        .for_each(|(ch, out)| {
-            for (i, v) in out.iter_mut().enumerate() {
-                let w: Vec<f32> = conf.iter().map(|p| p.data()[i].clamp(0.0, 1.0)).collect();
-                let sw: f32 = w.iter().sum();
-                if sw <= 0.0 {
-                    continue;
+        .zip(of_mean.data().par_chunks(n))
+        .for_each(|(out, m)| {
+            for ((v, m), s2) in out.iter_mut().zip(m).zip(sum_w2.data()) {
+                if m.is_finite() {
+                    *v = m / s2;
                 }
-                let s2: f32 = w.iter().map(|x| (x / sw) * (x / sw)).sum();
-                if s2 > 0.95 {
-                    continue; // one frame alone: keep the local estimate
-                }
-                let mean: f32 = colors
-                    .iter()
-                    .zip(&w)
-                    .map(|(p, x)| x / sw * p.channel(ch)[i])
-                    .sum();
-                let spread: f32 = colors
-                    .iter()
-                    .zip(&w)
-                    .map(|(p, x)| x / sw * (p.channel(ch)[i] - mean).powi(2))
-                    .sum();
-                *v = spread / (1.0 - s2);
             }
         });
     var
@@ -242,6 +243,52 @@ mod tests {
         );
         for i in 0..os.data().len() {
             assert!((oa.data()[i] + ob.data()[i] - os.data()[i]).abs() < 1e-5);
+        }
+    }
+
+    /// A `w × h` window whose frame `k` is the constant `values[k]` with confidence `conf[k]`.
+    fn flat_window(w: usize, h: usize, values: [f32; 5], conf: [f32; 5]) -> AlignedWindow {
+        use crate::align::AlignedFrame;
+        let frames = (0..5)
+            .map(|k| AlignedFrame {
+                offset: k as i32 - 2,
+                color: Plane::filled(w, h, 3, values[k]),
+                alpha: None,
+                albedo: None,
+                normal: None,
+                depth: None,
+                aovs: vec![],
+                confidence: Plane::filled(w, h, 1, conf[k]),
+                flow: Plane::zeros(w, h, 2),
+            })
+            .collect();
+        AlignedWindow { frames }
+    }
+
+    #[test]
+    fn the_window_noise_variance_is_the_trusted_frames_sample_variance() {
+        // 1..5 equally trusted: the unbiased sample variance is 2.5
+        let v = window_noise_variance(&flat_window(6, 8, [1., 2., 3., 4., 5.], [1.; 5]), 2..5);
+        assert_eq!((v.width(), v.height(), v.channels()), (6, 3, 3));
+        assert!(
+            v.data().iter().all(|x| (x - 2.5).abs() < 1e-5),
+            "{:?}",
+            v.data()
+        );
+        // an untrusted outlier does not count: 2, 3, 4 give 1
+        let v = window_noise_variance(
+            &flat_window(6, 8, [100., 2., 3., 4., 0.], [0., 1., 1., 1., 0.]),
+            0..8,
+        );
+        assert!(
+            v.data().iter().all(|x| (x - 1.0).abs() < 1e-5),
+            "{:?}",
+            v.data()
+        );
+        // the centre alone: its local variance (0 on a flat frame), also where nothing is trusted
+        for conf in [[0., 0., 1., 0., 0.], [0.; 5]] {
+            let v = window_noise_variance(&flat_window(6, 8, [1., 2., 3., 4., 5.], conf), 0..8);
+            assert!(v.data().iter().all(|&x| x == 0.0), "{conf:?}");
         }
     }
 }
