@@ -265,6 +265,26 @@ fn pseudo_references_can_be_left_out_of_the_targets() {
     assert!(without.iter().all(|&t| t != pseudo));
     // the noisier renders still serve as targets at every level below the input
     assert!(without.contains(&0) && without.contains(&1));
+    // the teacher for the noisiest input only: every pseudo target has the `low` input
+    let levels = radn_nn::train::dataset::INPUT_LEVELS;
+    let low = levels.iter().position(|l| *l == "low").unwrap();
+    let mut cfg = config(4);
+    cfg.pseudo_inputs = vec!["low".into()];
+    let t = Trainer::new(cfg, d.path(), &d.path().join("low-only"), false, &device).unwrap();
+    let plans: Vec<_> = (0..200).flat_map(|step| t.plan_step(step)).collect();
+    let to_pseudo: Vec<_> = plans.iter().filter(|p| p.2 == pseudo).collect();
+    assert!(!to_pseudo.is_empty(), "the low input never met the teacher");
+    assert!(
+        to_pseudo.iter().all(|p| p.1 == low),
+        "a pseudo target for another input"
+    );
+    let e = TrainConfig::parse(
+        "model = \"small\"\ntrain = \"t\"\nval = \"v\"\nsteps = 1\npseudo_inputs = [\"lo\"]\n",
+    )
+    .err()
+    .expect("an unknown level was accepted")
+    .to_string();
+    assert!(e.contains("pseudo_inputs") && e.contains("\"lo\""), "{e}");
 }
 
 #[test]

@@ -25,6 +25,14 @@ pub enum Activation {
     Eta,
     /// Softmax, then η_t on the normalised weights.
     SoftmaxEta,
+    /// The raw outputs' positive part normalised to sum 1, then η_t (the paper's "additional
+    /// normalization", section 4). Unlike [`Activation::Eta`] the threshold then acts on
+    /// weights whose scale is fixed (a uniform kernel is 1/K everywhere), so every `t` in
+    /// [0, 1/K) is a meaningful strength control: raising it drops the taps weaker than `t`
+    /// and moves the output toward the taps the network trusts most, without changing flat
+    /// regions whose kernels are uniform. With `Eta` the raw weights settle near 2/K in
+    /// training, above every allowed `t`, and the threshold barely acts.
+    NormEta,
 }
 
 /// The per-frame backbone.

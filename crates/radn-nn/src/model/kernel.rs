@@ -25,11 +25,17 @@ pub struct Kernels {
 /// The activation of paper eq. 3 over dimension 1 of raw weights `[B, K, H, W]`:
 /// `max(0, w − t) / Σ max(0, w − t)`; where every weight is at most `t` the kernel becomes the
 /// identity (all weight on tap `identity_tap`). With [`Activation::SoftmaxEta`] a softmax
-/// normalises the raw weights first.
+/// normalises the raw weights first; with [`Activation::NormEta`] their positive part divided
+/// by its sum (a pixel whose raw weights are all ≤ 0 gets the identity).
 pub fn eta(raw: Tensor<4>, t: f32, activation: Activation, identity_tap: usize) -> Tensor<4> {
     let w = match activation {
         Activation::Eta => raw,
         Activation::SoftmaxEta => softmax(raw, 1),
+        Activation::NormEta => {
+            let positive = raw.clamp_min(0.0);
+            let sum = positive.clone().sum_dim(1).clamp_min(1e-12);
+            positive / sum
+        }
     };
     let [b, k, h, wd] = w.dims();
     let kept = (w - t).clamp_min(0.0);
@@ -176,7 +182,7 @@ mod tests {
         let w: Vec<f32> = (0..125)
             .map(|i| ((i * 37 % 101) as f32 / 101.0) * 0.02)
             .collect();
-        for act in [Activation::Eta, Activation::SoftmaxEta] {
+        for act in [Activation::Eta, Activation::SoftmaxEta, Activation::NormEta] {
             let mut prev: Option<Vec<f32>> = None;
             for t in [0.0, 0.002, 0.004, 0.006, 0.008] {
                 let out = vals(&eta(raw(w.clone(), 125), t, act, 62));
@@ -189,6 +195,46 @@ mod tests {
                 prev = Some(out);
             }
         }
+    }
+
+    #[test]
+    fn the_normalised_eta_is_scale_free_keeps_uniform_kernels_and_falls_back_to_identity() {
+        let k = 125;
+        let w: Vec<f32> = (0..k)
+            .map(|i| ((i * 37 % 101) as f32 / 101.0) * 0.02 + 0.001)
+            .collect();
+        let t = 1.0 / (2.0 * k as f32);
+        let a = vals(&eta(raw(w.clone(), k), t, Activation::NormEta, 62));
+        // the raw weights' scale does not matter: ×40 gives the same kernel
+        let scaled: Vec<f32> = w.iter().map(|v| v * 40.0).collect();
+        let b = vals(&eta(raw(scaled, k), t, Activation::NormEta, 62));
+        for (x, y) in a.iter().zip(&b) {
+            assert!((x - y).abs() < 1e-6, "{x} vs {y}");
+        }
+        // on the normalised weights p = w / Σw: zero below t, proportional to p − t above
+        let sum: f32 = w.iter().sum();
+        let kept: f32 = w.iter().map(|v| (v / sum - t).max(0.0)).sum();
+        for (out, v) in a.iter().zip(&w) {
+            let p = v / sum;
+            let want = if p <= t { 0.0 } else { (p - t) / kept };
+            assert!((out - want).abs() < 1e-6, "{out} vs {want}");
+        }
+        // a uniform kernel stays uniform at every allowed threshold, whatever its scale
+        for t in [0.0, 0.004, 0.0075, 0.99 / k as f32] {
+            let u = vals(&eta(raw(vec![3.0; k], k), t, Activation::NormEta, 62));
+            assert!(
+                u.iter().all(|v| (v - 1.0 / k as f32).abs() < 1e-6),
+                "t = {t}"
+            );
+        }
+        // no positive raw weight: the identity tap
+        let id = vals(&eta(
+            raw(vec![-0.1, 0.0, -0.3, -0.05, 0.0, -0.2], 6),
+            0.0,
+            Activation::NormEta,
+            2,
+        ));
+        assert_eq!(id, vec![0.0, 0.0, 1.0, 0.0, 0.0, 0.0]);
     }
 
     #[test]

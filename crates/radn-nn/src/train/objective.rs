@@ -74,8 +74,10 @@ fn noise_rank(level: &str) -> u8 {
 /// Which (input, target) pairs training draws from.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct PairRule {
-    /// The pseudo-reference may be a target (for the `low` and `half` inputs).
-    pub pseudo: bool,
+    /// For which inputs (indexed like [`INPUT_LEVELS`]) the pseudo-reference may be the
+    /// target. A teacher's output is the cleanest target but carries its blur: it helps most
+    /// where the input is noisiest, so a rule may allow it for the `low` input alone.
+    pub pseudo_for: [bool; 3],
     /// An independent render noisier than the input may be a target too (`high → half`,
     /// `high → low`, `half → low`): Noise2Noise needs only independent, zero-mean noise in
     /// the target, not less of it, and these pairs are the only ones that show the network
@@ -96,7 +98,7 @@ pub fn valid_pairs(rule: PairRule) -> Vec<Pair> {
         for (t, tgt) in TARGET_LEVELS.iter().enumerate() {
             let pseudo = *tgt == "pseudo";
             let independent = !(*inp == "high" && pseudo && rule.pseudo_from_high) && inp != tgt;
-            let available = !pseudo || rule.pseudo;
+            let available = !pseudo || rule.pseudo_for[i];
             let direction = noise_rank(tgt) < noise_rank(inp) || (rule.noisier_targets && !pseudo);
             if direction && independent && available {
                 v.push(Pair {
@@ -107,6 +109,13 @@ pub fn valid_pairs(rule: PairRule) -> Vec<Pair> {
         }
     }
     v
+}
+
+impl PairRule {
+    /// The pseudo-reference a target for every input (`true`) or for none (`false`).
+    pub fn pseudo_all(pseudo: bool) -> [bool; 3] {
+        [pseudo; 3]
+    }
 }
 
 /// Draws one pair uniformly among the valid ones.
@@ -184,7 +193,7 @@ mod tests {
     fn pairs_never_target_a_noisier_or_the_same_render() {
         for pseudo in [false, true] {
             let rule = PairRule {
-                pseudo,
+                pseudo_for: PairRule::pseudo_all(pseudo),
                 noisier_targets: false,
                 pseudo_from_high: true,
             };
@@ -207,7 +216,7 @@ mod tests {
     fn an_independent_teacher_is_a_target_for_the_least_noisy_input_too() {
         let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
         let rule = |from_high| PairRule {
-            pseudo: true,
+            pseudo_for: PairRule::pseudo_all(true),
             noisier_targets: false,
             pseudo_from_high: from_high,
         };
@@ -223,7 +232,7 @@ mod tests {
         let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
         for pseudo in [false, true] {
             let pairs: Vec<_> = valid_pairs(PairRule {
-                pseudo,
+                pseudo_for: PairRule::pseudo_all(pseudo),
                 noisier_targets: true,
                 pseudo_from_high: true,
             })
@@ -238,6 +247,26 @@ mod tests {
             assert!(!pairs.contains(&("high", "pseudo")));
             assert!(pairs.iter().all(|(i, t)| i != t));
         }
+    }
+
+    #[test]
+    fn a_teacher_for_the_noisiest_input_only_is_no_target_for_the_others() {
+        let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
+        let low = INPUT_LEVELS.iter().position(|&l| l == "low").unwrap();
+        let mut pseudo_for = [false; 3];
+        pseudo_for[low] = true;
+        let pairs: Vec<_> = valid_pairs(PairRule {
+            pseudo_for,
+            noisier_targets: true,
+            pseudo_from_high: false,
+        })
+        .iter()
+        .map(name)
+        .collect();
+        let to_pseudo: Vec<_> = pairs.iter().filter(|(_, t)| *t == "pseudo").collect();
+        assert_eq!(to_pseudo, vec![&("low", "pseudo")]);
+        // the six independent pairs stay
+        assert_eq!(pairs.len(), 7, "{pairs:?}");
     }
 
     #[test]
