@@ -281,8 +281,7 @@ fn pseudo_references_can_be_left_out_of_the_targets() {
     let e = TrainConfig::parse(
         "model = \"small\"\ntrain = \"t\"\nval = \"v\"\nsteps = 1\npseudo_inputs = [\"lo\"]\n",
     )
-    .err()
-    .expect("an unknown level was accepted")
+    .expect_err("an unknown level was accepted")
     .to_string();
     assert!(e.contains("pseudo_inputs") && e.contains("\"lo\""), "{e}");
 }
