@@ -13,13 +13,19 @@ fn rgb(path: &std::path::Path) -> radn_core::Plane {
     beauty_rgb(&ExrFile::read(path).unwrap())
 }
 
-/// Mean PSNR over the frames with a reference (3–7) of `dir/name_####.exr`.
+/// Mean PSNR over the frames with a reference (3–7) of `dir/name_####.exr` against the
+/// sample's reference.
 fn mean_psnr(dir: &std::path::Path, name: &str) -> f64 {
+    mean_psnr_against(dir, name, "ref")
+}
+
+/// [`mean_psnr`] against the sample's folder `against` (`ref`, or an input level).
+fn mean_psnr_against(dir: &std::path::Path, name: &str, against: &str) -> f64 {
     let frames = 3..=7;
     let n = frames.clone().count() as f64;
     frames
         .map(|f| {
-            let reference = rgb(&sample().join(format!("ref/frame_{f:04}.exr")));
+            let reference = rgb(&sample().join(format!("{against}/frame_{f:04}.exr")));
             psnr(&rgb(&dir.join(format!("{name}_{f:04}.exr"))), &reference).unwrap()
         })
         .sum::<f64>()
@@ -72,15 +78,11 @@ fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
             "--threshold",
             t,
         ]);
-        let dir = d.path().join(format!("t{t}"));
-        let mean = (3..=7)
-            .map(|f| {
-                let given = rgb(&sample().join(format!("high/frame_{f:04}.exr")));
-                psnr(&rgb(&dir.join(format!("dn_{f:04}.exr"))), &given).unwrap()
-            })
-            .sum::<f64>()
-            / 5.0;
-        closeness.push(mean);
+        closeness.push(mean_psnr_against(
+            &d.path().join(format!("t{t}")),
+            "dn",
+            "high",
+        ));
     }
     assert!(
         closeness[1] > closeness[0] + 0.2,

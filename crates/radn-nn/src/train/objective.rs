@@ -77,7 +77,7 @@ pub struct PairRule {
     /// For which inputs (indexed like [`INPUT_LEVELS`]) the pseudo-reference may be the
     /// target. A teacher's output is the cleanest target but carries its blur: it helps most
     /// where the input is noisiest, so a rule may allow it for the `low` input alone.
-    pub pseudo_for: [bool; 3],
+    pub pseudo_for: [bool; INPUT_LEVELS.len()],
     /// An independent render noisier than the input may be a target too (`high → half`,
     /// `high → low`, `half → low`): Noise2Noise needs only independent, zero-mean noise in
     /// the target, not less of it, and these pairs are the only ones that show the network
@@ -109,13 +109,6 @@ pub fn valid_pairs(rule: PairRule) -> Vec<Pair> {
         }
     }
     v
-}
-
-impl PairRule {
-    /// The pseudo-reference a target for every input (`true`) or for none (`false`).
-    pub fn pseudo_all(pseudo: bool) -> [bool; 3] {
-        [pseudo; 3]
-    }
 }
 
 /// Draws one pair uniformly among the valid ones.
@@ -193,7 +186,7 @@ mod tests {
     fn pairs_never_target_a_noisier_or_the_same_render() {
         for pseudo in [false, true] {
             let rule = PairRule {
-                pseudo_for: PairRule::pseudo_all(pseudo),
+                pseudo_for: [pseudo; INPUT_LEVELS.len()],
                 noisier_targets: false,
                 pseudo_from_high: true,
             };
@@ -216,7 +209,7 @@ mod tests {
     fn an_independent_teacher_is_a_target_for_the_least_noisy_input_too() {
         let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
         let rule = |from_high| PairRule {
-            pseudo_for: PairRule::pseudo_all(true),
+            pseudo_for: [true; INPUT_LEVELS.len()],
             noisier_targets: false,
             pseudo_from_high: from_high,
         };
@@ -232,7 +225,7 @@ mod tests {
         let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
         for pseudo in [false, true] {
             let pairs: Vec<_> = valid_pairs(PairRule {
-                pseudo_for: PairRule::pseudo_all(pseudo),
+                pseudo_for: [pseudo; INPUT_LEVELS.len()],
                 noisier_targets: true,
                 pseudo_from_high: true,
             })
@@ -253,7 +246,7 @@ mod tests {
     fn a_teacher_for_the_noisiest_input_only_is_no_target_for_the_others() {
         let name = |p: &Pair| (INPUT_LEVELS[p.input], TARGET_LEVELS[p.target]);
         let low = INPUT_LEVELS.iter().position(|&l| l == "low").unwrap();
-        let mut pseudo_for = [false; 3];
+        let mut pseudo_for = [false; INPUT_LEVELS.len()];
         pseudo_for[low] = true;
         let pairs: Vec<_> = valid_pairs(PairRule {
             pseudo_for,

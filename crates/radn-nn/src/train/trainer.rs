@@ -164,7 +164,7 @@ impl TrainConfig {
 
     /// For which inputs (indexed like [`INPUT_LEVELS`]) the pseudo-reference may be the
     /// target: none without `pseudo_references`, else those of `pseudo_inputs` (all if empty).
-    pub fn pseudo_for(&self) -> [bool; 3] {
+    pub fn pseudo_for(&self) -> [bool; INPUT_LEVELS.len()] {
         std::array::from_fn(|i| {
             self.pseudo_references
                 && (self.pseudo_inputs.is_empty()
