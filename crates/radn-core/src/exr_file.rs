@@ -57,8 +57,22 @@ const EXR_MAGIC: [u8; 4] = [0x76, 0x2f, 0x31, 0x01];
 
 /// Opens a file for decoding, refusing one that cannot be opened or does not start with the
 /// OpenEXR magic number (so a JPEG or an empty file is reported as "not an EXR" rather than as
-/// a decoder error); the file is handed back rewound, so each read opens it once.
+/// a decoder error), or whose headers claim more pixels than it can hold
+/// ([`check_plausible_size`]); the file is handed back rewound, so each read opens it once.
 pub(crate) fn open_exr(path: &Path) -> Result<std::fs::File> {
+    use std::io::Seek;
+    let mut f = open_exr_unchecked(path)?;
+    let meta = headers_of(path, &mut f)?;
+    check_plausible_size(path, &meta, &f)?;
+    f.rewind().map_err(|source| Error::Open {
+        path: path.to_path_buf(),
+        source,
+    })?;
+    Ok(f)
+}
+
+/// Opens an EXR file after checking its magic number, at its start.
+fn open_exr_unchecked(path: &Path) -> Result<std::fs::File> {
     use std::io::Seek;
     let mut magic = [0u8; 4];
     let mut f = std::fs::File::open(path).map_err(|source| Error::Open {
@@ -79,10 +93,72 @@ pub(crate) fn open_exr(path: &Path) -> Result<std::fs::File> {
 
 /// A file's headers alone (no pixel data decoded), one opening of the file.
 pub(crate) fn read_headers(path: &Path) -> Result<exr::meta::MetaData> {
-    exr::meta::MetaData::read_from_unbuffered(open_exr(path)?, false).map_err(|e| Error::Decode {
+    let mut f = open_exr_unchecked(path)?;
+    let meta = headers_of(path, &mut f)?;
+    check_plausible_size(path, &meta, &f)?;
+    Ok(meta)
+}
+
+fn headers_of(path: &Path, f: &mut std::fs::File) -> Result<exr::meta::MetaData> {
+    exr::meta::MetaData::read_from_unbuffered(&mut *f, false).map_err(|e| Error::Decode {
         path: path.to_path_buf(),
         detail: describe_exr_error(e),
     })
+}
+
+/// How many bytes of pixels one byte of a part compressed this way can decode to, at most
+/// (with room to spare): deflate (ZIP, PXR24) cannot exceed 1032:1, PIZ's Huffman runs about
+/// 450:1, RLE 64:1, B44 about 11:1; the DCT and wavelet codecs (DWA, HTJ2K) are given far more.
+fn max_expansion(c: exr::compression::Compression) -> u128 {
+    use exr::compression::Compression as C;
+    match c {
+        C::Uncompressed => 1,
+        C::RLE => 128,
+        C::B44 | C::B44A => 32,
+        C::ZIP1 | C::ZIP16 | C::PXR24 | C::PIZ => 2048,
+        _ => 1 << 17,
+    }
+}
+
+/// Refuses a file whose headers claim more pixels than its bytes could hold under its
+/// compression, before anything that big is allocated: a damaged size in a header (a data
+/// window of 100 000 × 100 000 in a 250 kB file) would otherwise ask for gigabytes.
+fn check_plausible_size(
+    path: &Path,
+    meta: &exr::meta::MetaData,
+    file: &std::fs::File,
+) -> Result<()> {
+    let len = file.metadata().map(|m| m.len()).unwrap_or(u64::MAX) as u128;
+    let (mut decoded, mut room) = (0u128, 0u128);
+    for h in meta.headers.iter() {
+        let (w, ht) = (h.layer_size.width() as u128, h.layer_size.height() as u128);
+        let per_pixel: u128 = h
+            .channels
+            .list
+            .iter()
+            .map(|c| c.sample_type.bytes_per_sample() as u128)
+            .sum();
+        decoded += w * ht * per_pixel;
+        room = room.max(max_expansion(h.compression));
+    }
+    // small files get headroom: headers, tables and codec set-up dominate them
+    let limit = (len + (1 << 16)) * room;
+    if decoded > limit {
+        let first = &meta.headers[0];
+        return Err(Error::Decode {
+            path: path.to_path_buf(),
+            detail: format!(
+                "its header claims {}x{} pixels ({:.1} GB decoded) in a {:.1} kB file, more \
+                 than {} can hold: the header is damaged",
+                first.layer_size.width(),
+                first.layer_size.height(),
+                decoded as f64 / 1e9,
+                len as f64 / 1e3,
+                first.compression,
+            ),
+        });
+    }
+    Ok(())
 }
 
 impl ExrFile {
@@ -618,6 +694,43 @@ mod tests {
 
     fn ramp(n: usize, k: f32) -> Vec<f32> {
         (0..n).map(|i| i as f32 * k).collect()
+    }
+
+    #[test]
+    fn a_header_claiming_more_pixels_than_the_file_can_hold_is_refused_before_decoding() {
+        let d = tempfile::tempdir().unwrap();
+        let p = d.path().join("a.exr");
+        let n = 64 * 32;
+        ExrFile::from_channels(
+            &p,
+            64,
+            32,
+            vec![("Y".into(), ramp(n, 0.5))],
+            SampleKind::F32,
+        )
+        .write_atomic(&p)
+        .unwrap();
+        assert!(ExrFile::read(&p).is_ok());
+        // the data window's maximum corner (x, y) set to 99 999: 10^10 pixels in ~1 kB
+        let mut b = std::fs::read(&p).unwrap();
+        let key = b"dataWindow\0box2i\0";
+        let at = b.windows(key.len()).position(|w| w == key).unwrap() + key.len() + 4;
+        for k in [8, 12] {
+            b[at + k..at + k + 4].copy_from_slice(&99_999i32.to_le_bytes());
+        }
+        let q = d.path().join("damaged.exr");
+        std::fs::write(&q, &b).unwrap();
+        for e in [
+            ExrFile::read(&q).err().unwrap(),
+            ExrFile::read_size(&q).err().unwrap(),
+            ExrFile::read_rows(&q, 0..4).err().unwrap(),
+        ] {
+            let e = e.to_string();
+            assert!(
+                e.contains("damaged.exr") && e.contains("header claims 100000x100000"),
+                "{e}"
+            );
+        }
     }
 
     #[test]

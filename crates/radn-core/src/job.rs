@@ -18,6 +18,7 @@ use crate::error::{Error, Result};
 use crate::exr_file::{ExrFile, SampleKind};
 use crate::frame::{Frame, FrameReader};
 use crate::output::{ensure_not_input, ensure_writable_dir};
+use crate::output_locks::OutputClaim;
 use crate::window::WindowReader;
 
 /// One sequence to denoise.
@@ -61,6 +62,27 @@ impl SequenceJob {
         })
     }
 
+    /// Claims `output` for this run ([`OutputClaim`]), waiting while another run on the same
+    /// output folder writes it.
+    fn claim(&self, output: &Path) -> Result<OutputClaim> {
+        OutputClaim::acquire(output, || {
+            tracing::info!(
+                "{}: another run is writing it; waiting for that run",
+                output.display()
+            )
+        })
+    }
+
+    /// Whether `output`, claimed by this run, was written meanwhile by another run on the same
+    /// folder (and this run does not overwrite).
+    fn done_by_another_run(&self, output: &Path) -> bool {
+        let done = !self.overwrite && output.exists();
+        if done {
+            tracing::info!("{}: written by another run", output.display());
+        }
+        done
+    }
+
     /// Checks before any work: no output may be an input, every output folder must be writable,
     /// and the inputs must be EXR files of one size (read from their headers).
     /// Returns the frames' size.
@@ -78,6 +100,10 @@ impl SequenceJob {
         dirs.dedup();
         for d in dirs {
             ensure_writable_dir(&d)?;
+            // what runs killed while writing here left behind (a live run's files are locked)
+            if let Some(dir) = d.parent() {
+                crate::output_locks::remove_stale(dir)?;
+            }
         }
         // every input is an EXR of one size (headers only): fail now, not after hours of work
         let mut first: Option<(usize, usize)> = None;
@@ -138,7 +164,8 @@ impl SequenceJob {
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let total = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
-            if finished {
+            let claim = (!finished).then(|| self.claim(output)).transpose()?;
+            if finished || self.done_by_another_run(output) {
                 report.skipped += 1;
                 progress((done + 1) as f64, total);
                 continue;
@@ -168,6 +195,7 @@ impl SequenceJob {
             };
             let file = windows.take_file(pos).expect("each frame is written once");
             write_result(file, windows.frame(pos), &out, output, self.output_kind)?;
+            drop(claim);
             report.written += 1;
             progress((done + 1) as f64, total);
         }
@@ -195,7 +223,8 @@ impl SequenceJob {
         let halo = method.halo();
         let frames = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
-            if finished {
+            let claim = (!finished).then(|| self.claim(output)).transpose()?;
+            if finished || self.done_by_another_run(output) {
                 report.skipped += 1;
                 progress((done + 1) as f64, frames);
                 continue;
@@ -246,6 +275,7 @@ impl SequenceJob {
                 band,
                 denoise_band,
             )?;
+            drop(claim);
             let total = started.elapsed();
             tracing::debug!(
                 "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s",

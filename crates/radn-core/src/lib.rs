@@ -1,7 +1,8 @@
 //! radn-core: everything in radn that has no network in it, in the order of the data path.
 //!
 //! - EXR files in and out: [`exr_file`], [`frame`], [`mapping`], [`sequence`], inputs checked
-//!   and repaired ([`hygiene`]), safe outputs ([`output`]: atomic writes, PNG), denoised
+//!   and repaired ([`hygiene`]), safe outputs ([`output`]: atomic writes, PNG; [`output_locks`]: runs sharing a
+//!   folder, debris of killed runs), denoised
 //!   frames written into copies of their inputs ([`denoised_output`]).
 //! - Windows: read ([`window`]) and aligned onto their centre frame with per-pixel confidence
 //!   ([`motion`], [`warp`], [`confidence`], [`align`]), whole or band by band ([`banding`]).
@@ -28,6 +29,7 @@ pub mod mapping;
 pub mod metrics;
 pub mod motion;
 pub mod output;
+pub mod output_locks;
 pub mod passes;
 pub mod plane;
 pub mod report;

@@ -23,6 +23,8 @@ pub fn ensure_not_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
 /// A temporary file in `dir` for an output that is renamed into place once complete. It gets
 /// the permissions a plainly created file would (0666 less the umask) rather than tempfile's
 /// private 0600, so results stay readable by the rest of a pipeline (compositors, other users).
+/// It is locked for as long as it is open ([`crate::output_locks`]), so that a run starting on
+/// the same folder can tell it from the debris of a killed run.
 pub fn output_tempfile(
     dir: &Path,
     prefix: &str,
@@ -35,7 +37,14 @@ pub fn output_tempfile(
         use std::os::unix::fs::PermissionsExt;
         b.permissions(std::fs::Permissions::from_mode(0o666));
     }
-    b.tempfile_in(dir)
+    loop {
+        let tmp = b.tempfile_in(dir)?;
+        if crate::output_locks::lock_created(tmp.as_file(), tmp.path())? {
+            return Ok(tmp);
+        }
+        // another run's cleaner took it for debris before it was locked: make another
+        drop(tmp);
+    }
 }
 
 /// The temporary file's suffix for an output: its extension and `.tmp` (`.exr.tmp` for an EXR),
@@ -62,11 +71,30 @@ pub fn write_atomically_with<E: From<Error>>(
             source,
         })?;
     write(tmp.as_file(), tmp.path())?;
+    // on the disk before it gets the output's name: a full disk or a failing network share
+    // reports here at the latest (some file systems only at flush), and a machine that loses
+    // power after the rename finds the whole file, not an empty one
+    tmp.as_file().sync_all().map_err(|source| Error::Write {
+        path: path.to_path_buf(),
+        source,
+    })?;
     tmp.persist(path).map_err(|e| Error::Write {
         path: path.to_path_buf(),
         source: e.error,
     })?;
+    sync_folder(&dir);
     Ok(())
+}
+
+/// Makes a rename in `dir` durable (best effort: not every platform or file system can sync a
+/// folder, and the file itself is already on the disk).
+fn sync_folder(dir: &Path) {
+    #[cfg(unix)]
+    if let Ok(d) = std::fs::File::open(dir) {
+        let _ = d.sync_all();
+    }
+    #[cfg(not(unix))]
+    let _ = dir;
 }
 
 /// [`write_atomically_with`] through a buffered writer, flushed before the rename.
@@ -161,6 +189,7 @@ pub fn ensure_writable_dir(output: &Path) -> Result<()> {
     let dir = create_parent(output)?;
     tempfile::Builder::new()
         .prefix(".radn-probe-")
+        .suffix(".tmp")
         .tempfile_in(&dir)
         .map(drop)
         .map_err(|source| Error::Write { path: dir, source })

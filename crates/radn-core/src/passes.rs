@@ -107,9 +107,7 @@ impl DenoiseRun {
             };
             std::fs::create_dir_all(&dir).map_err(write_err)?;
             Some(
-                tempfile::Builder::new()
-                    .prefix(".radn-passes-")
-                    .tempdir_in(&dir)
+                crate::output_locks::ScratchFolder::create(&dir, ".radn-passes-")
                     .map_err(write_err)?,
             )
         } else {

@@ -4,7 +4,7 @@ use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
 use radn_nn::train::dataset::{prepare, PrepareOptions, TileDataset};
-use radn_nn::train::trainer::{TrainConfig, Trainer};
+use radn_nn::train::trainer::{checkpoint_files, TrainConfig, Trainer};
 
 fn sample() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../samples/cycles-sample")
@@ -102,14 +102,24 @@ fn one_window_tile_sets() -> tempfile::TempDir {
 /// Copies a run folder (its checkpoint files) to start a second run from the same point.
 fn copy_run(from: &Path, to: &Path) {
     std::fs::create_dir_all(to).unwrap();
-    for f in [
-        "model.safetensors",
-        "checkpoint.bpk",
-        "optimizer.bpk",
-        "state.json",
-    ] {
-        std::fs::copy(from.join(f), to.join(f)).unwrap();
+    for e in std::fs::read_dir(from).unwrap() {
+        let name = e.unwrap().file_name();
+        let n = name.to_string_lossy();
+        if n.ends_with(".bpk") || n == "model.safetensors" || n == "state.json" {
+            std::fs::copy(from.join(&name), to.join(&name)).unwrap();
+        }
     }
+}
+
+/// The names of a run folder's checkpoint files, sorted.
+fn checkpoint_names(run: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(run)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.ends_with(".bpk") || n.ends_with(".tmp"))
+        .collect();
+    v.sort();
+    v
 }
 
 #[test]
@@ -146,14 +156,35 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
     b.step().unwrap();
     b.checkpoint().unwrap();
     drop(b);
-    copy_run(&d.path().join("b"), &d.path().join("c")); // for the control below
-                                                        // the killed run had logged step 3 after its checkpoint: resuming redoes it, once
+    assert_eq!(
+        checkpoint_names(&d.path().join("b")),
+        ["checkpoint-0000002.bpk", "optimizer-0000002.bpk"],
+        "the step-0 checkpoint outlived its successor"
+    );
+    // for the control below
+    copy_run(&d.path().join("b"), &d.path().join("c"));
+    // killed inside its step-4 checkpoint, after the weights and optimizer files and before
+    // state.json (its commit), with another file cut short: what such a kill leaves on disk
+    for f in checkpoint_files(&d.path().join("a"), 4) {
+        std::fs::copy(&f, d.path().join("b").join(f.file_name().unwrap())).unwrap();
+    }
+    std::fs::write(d.path().join("b/.radn-Ab3xYz.bpk.tmp"), b"BURNPACK, cut sh").unwrap();
+    // the killed run had logged step 3 after its checkpoint: resuming redoes it, once
     let csv = d.path().join("b/metrics.csv");
     let header = "step,kind,loss,psnr,lr,tiles_per_s\n";
-    let logged = "1,train,0.5,,1e-4,1.0\n2,train,0.5,,1e-4,1.0\n3,train,0.5,,1e-4,1.0\n";
+    // (and was killed in mid-append of the next row)
+    let logged = "1,train,0.5,,1e-4,1.0\n2,train,0.5,,1e-4,1.0\n3,train,0.5,,1e-4,1.0\n1";
     std::fs::write(&csv, format!("{header}{logged}")).unwrap();
     let mut b = Trainer::new(config(4), d.path(), &d.path().join("b"), true, &device).unwrap();
-    assert_eq!(b.state.step, 2, "resumes from the saved step");
+    assert_eq!(
+        b.state.step, 2,
+        "resumes from the last committed checkpoint"
+    );
+    assert_eq!(
+        checkpoint_names(&d.path().join("b")),
+        ["checkpoint-0000002.bpk", "optimizer-0000002.bpk"],
+        "the uncommitted checkpoint and the cut-short file were not removed"
+    );
     b.run(|_| {}).unwrap();
     let train_steps: Vec<String> = std::fs::read_to_string(&csv)
         .unwrap()
@@ -176,8 +207,8 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
     );
     // control: the same step-2 weights with the optimizer state of step 0 end elsewhere
     std::fs::copy(
-        d.path().join("start/optimizer.bpk"),
-        d.path().join("c/optimizer.bpk"),
+        &checkpoint_files(&d.path().join("start"), 0)[1],
+        &checkpoint_files(&d.path().join("c"), 2)[1],
     )
     .unwrap();
     let mut c = Trainer::new(config(4), d.path(), &d.path().join("c"), true, &device).unwrap();
@@ -380,3 +411,57 @@ fn a_short_run_moves_every_layer_and_logs_each_layers_updates() {
 /// with Adam's ε = 1e-8 (the default): 0.070 (input conv) to 0.20 (first RA block), the head
 /// ×126. With burn's ε = 1e-5 the third RA block's convolutions moved only 0.0039–0.0098.
 const MIN_RELATIVE_MOVE: f64 = 3e-2;
+
+#[test]
+fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("tiles");
+    tiles(&out, 1, 1);
+    assert!(TileDataset::open(&out).is_ok());
+    // a second scene whose 4-spp frame 5 is cut short: preparing fails part way
+    let data = d.path().join("data");
+    for level in ["low", "half", "high"] {
+        let dst = data.join("a").join(level);
+        std::fs::create_dir_all(&dst).unwrap();
+        for f in 1..=9 {
+            let name = format!("frame_{f:04}.exr");
+            std::fs::copy(sample().join(level).join(&name), dst.join(&name)).unwrap();
+        }
+    }
+    for level in ["low", "half", "high"] {
+        let dst = data.join("b").join(level);
+        std::fs::create_dir_all(&dst).unwrap();
+        for f in 1..=9 {
+            let name = format!("frame_{f:04}.exr");
+            std::fs::copy(sample().join(level).join(&name), dst.join(&name)).unwrap();
+        }
+    }
+    let cut = data.join("b/low/frame_0005.exr");
+    let bytes = std::fs::read(&cut).unwrap();
+    std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
+    let opts = PrepareOptions {
+        tile: 32,
+        tiles_per_window: 1,
+        seed: 1,
+        frames: 5,
+        pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
+    };
+    let e = prepare(&data, &out, &opts, |_, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("frame_0005.exr"), "{e}");
+    // the earlier set's manifest went first, the shards written meanwhile are whole files
+    // under their names (no temporaries left), and opening the folder says what happened
+    let e = TileDataset::open(&out).unwrap_err().to_string();
+    assert!(e.contains("did not finish"), "{e}");
+    let names: Vec<String> = std::fs::read_dir(&out)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    assert!(
+        names
+            .iter()
+            .all(|n| n.starts_with("shard_") && n.ends_with(".bin")),
+        "{names:?}"
+    );
+}

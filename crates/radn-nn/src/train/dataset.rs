@@ -149,6 +149,7 @@ pub fn prepare(
 ) -> Result<Manifest> {
     let scenes = scene_folders(data, "high")?;
     std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
+    clear_tile_folder(out)?;
     let rb = record_bytes(opts.tile, opts.frames, TILE_FORMAT);
     let mut writer = ShardWriter::new(out, rb);
     let mut with_pseudo = 0;
@@ -301,11 +302,13 @@ fn encode(
     out
 }
 
+/// Writes tile records into shards of [`RECORDS_PER_SHARD`], each through a temporary file
+/// renamed into place once full (or at the end), so a killed run leaves no shard cut short.
 struct ShardWriter {
     dir: PathBuf,
     record_bytes: usize,
     count: usize,
-    file: Option<BufWriter<File>>,
+    file: Option<(BufWriter<File>, tempfile::NamedTempFile)>,
 }
 
 impl ShardWriter {
@@ -321,27 +324,58 @@ impl ShardWriter {
     fn write(&mut self, record: &[u8]) -> Result<()> {
         debug_assert_eq!(record.len(), self.record_bytes);
         if self.count.is_multiple_of(RECORDS_PER_SHARD) {
-            if let Some(mut f) = self.file.take() {
-                f.flush().map_err(|e| io_err(&self.dir, e))?;
-            }
-            let p = shard_path(&self.dir, self.count / RECORDS_PER_SHARD);
-            self.file = Some(BufWriter::new(File::create(&p).map_err(|e| io_err(&p, e))?));
+            self.close_shard()?;
+            let tmp = radn_core::output::output_tempfile(&self.dir, ".radn-", ".bin.tmp")
+                .map_err(|e| io_err(&self.dir, e))?;
+            let f = tmp
+                .as_file()
+                .try_clone()
+                .map_err(|e| io_err(tmp.path(), e))?;
+            self.file = Some((BufWriter::new(f), tmp));
         }
-        self.file
-            .as_mut()
-            .expect("open shard")
-            .write_all(record)
-            .map_err(|e| io_err(&self.dir, e))?;
+        let (f, tmp) = self.file.as_mut().expect("open shard");
+        f.write_all(record).map_err(|e| io_err(tmp.path(), e))?;
         self.count += 1;
         Ok(())
     }
 
-    fn finish(mut self) -> Result<usize> {
-        if let Some(mut f) = self.file.take() {
-            f.flush().map_err(|e| io_err(&self.dir, e))?;
+    /// Flushes the open shard and gives it its name.
+    fn close_shard(&mut self) -> Result<()> {
+        if let Some((mut f, tmp)) = self.file.take() {
+            let p = shard_path(&self.dir, (self.count - 1) / RECORDS_PER_SHARD);
+            f.flush().map_err(|e| io_err(&p, e))?;
+            f.get_ref().sync_all().map_err(|e| io_err(&p, e))?;
+            tmp.persist(&p).map_err(|e| io_err(&p, e.error))?;
         }
+        Ok(())
+    }
+
+    fn finish(mut self) -> Result<usize> {
+        self.close_shard()?;
         Ok(self.count)
     }
+}
+
+/// Readies `out` for a new tile set: removes the debris of killed runs and the earlier set's
+/// manifest and shards, so that until this run writes its manifest (last) the folder is not
+/// mistaken for a complete tile set.
+fn clear_tile_folder(out: &Path) -> Result<()> {
+    radn_core::output_locks::remove_stale(out)?;
+    let manifest = out.join("manifest.json");
+    if manifest.exists() {
+        std::fs::remove_file(&manifest).map_err(|e| io_err(&manifest, e))?;
+    }
+    for e in std::fs::read_dir(out)
+        .map_err(|e| io_err(out, e))?
+        .flatten()
+    {
+        let name = e.file_name();
+        let name = name.to_string_lossy();
+        if name.starts_with("shard_") && name.ends_with(".bin") {
+            std::fs::remove_file(e.path()).map_err(|err| io_err(&e.path(), err))?;
+        }
+    }
+    Ok(())
 }
 
 fn shard_path(dir: &Path, i: usize) -> PathBuf {
@@ -363,8 +397,12 @@ impl TileDataset {
             path: dir.to_path_buf(),
             detail,
         };
-        let text = std::fs::read_to_string(dir.join("manifest.json"))
-            .map_err(|e| err(format!("no manifest.json ({e})")))?;
+        let text = std::fs::read_to_string(dir.join("manifest.json")).map_err(|e| {
+            err(format!(
+                "no manifest.json ({e}): not a tile set, or `radn prepare` did not finish \
+                     (it writes the manifest last; run it again)"
+            ))
+        })?;
         let manifest: Manifest =
             serde_json::from_str(&text).map_err(|e| err(format!("bad manifest.json ({e})")))?;
         if manifest.feature_channels != INPUT_CHANNELS

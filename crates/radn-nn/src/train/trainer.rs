@@ -319,7 +319,8 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
     Ok(d)
 }
 
-/// A training run in `out`: `model.safetensors`, `optimizer.bpk`, `state.json`, `metrics.csv`.
+/// A training run in `out`: `model.safetensors`, `best.safetensors`, the checkpoint files
+/// ([`checkpoint_files`]) and `state.json`, `metrics.csv`, `layers.csv`, `steps/`.
 pub struct Trainer {
     /// Settings.
     pub config: TrainConfig,
@@ -356,6 +357,9 @@ impl Trainer {
             path: out.to_path_buf(),
             detail: e.to_string(),
         })?;
+        // temporary files of a run killed while writing (a live run's are locked)
+        radn_core::output_locks::remove_stale(out)?;
+        radn_core::output_locks::remove_stale(&out.join("steps"))?;
         let net_cfg = config.net_config(base)?;
         if net_cfg.frames != train.manifest.frames {
             return Err(NnError::Config(format!(
@@ -390,7 +394,11 @@ impl Trainer {
                 })?;
             // the Burnpack checkpoint keeps parameter ids, which the optimizer state is keyed by
             let mut d = Denoiser::new(net_cfg, device);
-            let ck = out.join("checkpoint.bpk");
+            let [mut ck, mut opt] = checkpoint_files(out, state.step);
+            if !ck.exists() && out.join("checkpoint.bpk").exists() {
+                // a run from before checkpoint files were named by their step
+                (ck, opt) = (out.join("checkpoint.bpk"), out.join("optimizer.bpk"));
+            }
             let mut bp = burn::store::BurnpackStore::from_file(&ck);
             let r = d.net.load_from(&mut bp).map_err(|e| NnError::Load {
                 path: ck.clone(),
@@ -405,11 +413,15 @@ impl Trainer {
             let optim = AdamConfig::new()
                 .with_epsilon(config.adam_epsilon)
                 .init()
-                .load(out.join("optimizer.bpk"))
+                .load(&opt)
                 .map_err(|e| NnError::Load {
-                    path: out.join("optimizer.bpk"),
+                    path: opt.clone(),
                     detail: format!("{e:?}"),
                 })?;
+            // a run killed inside a checkpoint left the next step's files, uncommitted
+            if ck.file_name() != Some(std::ffi::OsStr::new("checkpoint.bpk")) {
+                remove_other_checkpoints(out, state.step);
+            }
             // steps after the checkpoint are redone: their logged rows would be duplicates
             drop_metrics_after(&out.join("metrics.csv"), state.step)?;
             // layer rows carry the step they measured, before it was taken
@@ -606,28 +618,35 @@ impl Trainer {
         })
     }
 
-    /// Saves weights (a Burnpack checkpoint with parameter ids for resuming, and the
-    /// SafeTensors model file), optimizer and progress (each written whole, then renamed).
+    /// Saves a checkpoint: the weights (a Burnpack file with parameter ids, for resuming, and
+    /// the SafeTensors model file), the optimizer and the progress.
+    ///
+    /// The weights and optimizer files are named by their step ([`checkpoint_files`]) and
+    /// `state.json`, written last, names the step: its rename is the commit. A run killed at any
+    /// point of a checkpoint thus resumes from the last one whose `state.json` was written,
+    /// whose files are still there; the earlier checkpoint's files are removed only after it.
     pub fn checkpoint(&self) -> Result<()> {
         store::save(&self.denoiser, &self.out.join("model.safetensors"))?;
         let save_err = |path: &Path, e: String| NnError::Save {
             path: path.to_path_buf(),
             detail: e,
         };
-        write_atomically_with(&self.out.join("checkpoint.bpk"), |_, tmp| {
+        let [weights, optimizer] = checkpoint_files(&self.out, self.state.step);
+        write_atomically_with(&weights, |_, tmp| {
             let mut bp = burn::store::BurnpackStore::from_file(tmp).overwrite(true);
             self.denoiser
                 .net
                 .save_into(&mut bp)
                 .map_err(|e| save_err(tmp, format!("{e:?}")))
         })?;
-        write_atomically_with(&self.out.join("optimizer.bpk"), |_, tmp| {
+        write_atomically_with(&optimizer, |_, tmp| {
             self.optim
                 .save(tmp)
                 .map_err(|e| save_err(tmp, format!("{e:?}")))
         })?;
         let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
         write_bytes_atomically(&self.out.join("state.json"), st.as_bytes())?;
+        remove_other_checkpoints(&self.out, self.state.step);
         Ok(())
     }
 
@@ -695,7 +714,12 @@ fn drop_rows_from(path: &Path, first: usize) -> Result<()> {
     let Ok(text) = std::fs::read_to_string(path) else {
         return Ok(()); // no metrics yet
     };
-    let kept: String = text
+    // a last line without its newline is a row cut short by a kill in mid-append
+    let whole = match text.rfind('\n') {
+        Some(i) => &text[..=i],
+        None => "",
+    };
+    let kept: String = whole
         .lines()
         .enumerate()
         .filter(|(i, l)| {
@@ -712,6 +736,47 @@ fn drop_rows_from(path: &Path, first: usize) -> Result<()> {
     }
     write_bytes_atomically(path, kept.as_bytes())?;
     Ok(())
+}
+
+/// A run's checkpoint files for `step`: the Burnpack weights and the optimizer state.
+pub fn checkpoint_files(out: &Path, step: usize) -> [PathBuf; 2] {
+    [
+        out.join(format!("checkpoint-{step:07}.bpk")),
+        out.join(format!("optimizer-{step:07}.bpk")),
+    ]
+}
+
+/// Whether `name` is a checkpoint file of some step (or of a run from before checkpoint files
+/// were named by step).
+fn is_checkpoint_file(name: &str) -> bool {
+    let numbered = |prefix: &str| {
+        name.strip_prefix(prefix)
+            .and_then(|r| r.strip_suffix(".bpk"))
+            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
+    };
+    numbered("checkpoint-")
+        || numbered("optimizer-")
+        || name == "checkpoint.bpk"
+        || name == "optimizer.bpk"
+}
+
+/// Removes the checkpoint files of every step but `keep` (an earlier checkpoint, or the
+/// uncommitted one of a run killed before its `state.json`). A file that cannot be removed
+/// is logged and left: it costs disk, not correctness.
+fn remove_other_checkpoints(out: &Path, keep: usize) {
+    let kept = checkpoint_files(out, keep);
+    let Ok(entries) = std::fs::read_dir(out) else {
+        return;
+    };
+    for e in entries.flatten() {
+        let path = e.path();
+        let name = e.file_name();
+        if is_checkpoint_file(&name.to_string_lossy()) && !kept.contains(&path) {
+            if let Err(err) = std::fs::remove_file(&path) {
+                tracing::warn!("could not remove {}: {err}", path.display());
+            }
+        }
+    }
 }
 
 /// Where a run keeps the weights of one validation point (`keep_steps`).

@@ -11,7 +11,8 @@ pub struct Args {
     /// Training config (TOML): model preset, tile folders, steps, learning rate, loss, ...
     #[arg(long)]
     pub config: PathBuf,
-    /// Run folder: model.safetensors, best.safetensors, optimizer.bpk, state.json, metrics.csv.
+    /// Run folder: model.safetensors, best.safetensors, checkpoint-STEP.bpk, optimizer-STEP.bpk,
+    /// state.json (written last: the checkpoint's commit), metrics.csv.
     #[arg(long)]
     pub out: PathBuf,
     /// Continue the run in --out from its last checkpoint.
