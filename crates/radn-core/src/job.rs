@@ -1,7 +1,8 @@
 //! Denoising whole sequences: every frame decoded once and kept while windows need it (or,
 //! band by band, only the rows a band reaches), frames whose output exists skipped (so a killed
 //! run resumes), results written into a copy of the input file that keeps every other layer,
-//! through a temporary file renamed into place.
+//! through a temporary file renamed into place. Each output frame is claimed while it is made
+//! ([`crate::output_locks::OutputClaim`]), so two runs on one output write each frame once.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -99,11 +100,8 @@ impl SequenceJob {
             .collect();
         dirs.dedup();
         for d in dirs {
+            // also removes what runs killed while writing here left (a live run's are locked)
             ensure_writable_dir(&d)?;
-            // what runs killed while writing here left behind (a live run's files are locked)
-            if let Some(dir) = d.parent() {
-                crate::output_locks::remove_stale(dir)?;
-            }
         }
         // every input is an EXR of one size (headers only): fail now, not after hours of work
         let mut first: Option<(usize, usize)> = None;

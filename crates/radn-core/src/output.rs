@@ -184,7 +184,8 @@ fn create_parent(path: &Path) -> Result<PathBuf> {
 }
 
 /// Creates the folder of `output` if needed and proves it writable by creating and removing a
-/// temporary file in it, so a run fails before any work instead of after it.
+/// temporary file in it, so a run fails before any work instead of after it. Then removes what
+/// runs killed while writing there left behind ([`crate::output_locks::remove_stale`]).
 pub fn ensure_writable_dir(output: &Path) -> Result<()> {
     let dir = create_parent(output)?;
     tempfile::Builder::new()
@@ -192,7 +193,12 @@ pub fn ensure_writable_dir(output: &Path) -> Result<()> {
         .suffix(".tmp")
         .tempfile_in(&dir)
         .map(drop)
-        .map_err(|source| Error::Write { path: dir, source })
+        .map_err(|source| Error::Write {
+            path: dir.clone(),
+            source,
+        })?;
+    crate::output_locks::remove_stale(&dir)?;
+    Ok(())
 }
 
 fn normalize(p: &Path) -> PathBuf {

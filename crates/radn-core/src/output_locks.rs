@@ -173,6 +173,12 @@ impl OutputClaim {
             path: lock.clone(),
             source,
         };
+        if let Some(dir) = lock.parent().filter(|d| !d.as_os_str().is_empty()) {
+            std::fs::create_dir_all(dir).map_err(|source| Error::Write {
+                path: dir.to_path_buf(),
+                source,
+            })?;
+        }
         let mut waiting = Some(waiting);
         loop {
             let file = OpenOptions::new()
@@ -254,7 +260,8 @@ mod tests {
     #[test]
     fn a_claim_waits_for_the_holder_and_then_holds_alone() {
         let dir = tempfile::tempdir().unwrap();
-        let out = dir.path().join("frame_0007.exr");
+        // in a folder not made yet: the claim comes before the write that would make it
+        let out = dir.path().join("new/frame_0007.exr");
         let first = OutputClaim::acquire(&out, || panic!("nothing held it")).unwrap();
         assert!(OutputClaim::lock_path(&out).exists());
         let waited = Arc::new(AtomicBool::new(false));
@@ -292,7 +299,7 @@ mod tests {
         );
         // a live claim survives the cleaner; a released one is not there to clean
         let c = OutputClaim::acquire(&out, || {}).unwrap();
-        assert_eq!(remove_stale(dir.path()).unwrap(), 0);
+        assert_eq!(remove_stale(out.parent().unwrap()).unwrap(), 0);
         assert!(OutputClaim::lock_path(&out).exists());
         drop(c);
     }

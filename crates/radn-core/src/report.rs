@@ -44,6 +44,9 @@ pub fn write_report(
         path: img.clone(),
         source,
     })?;
+    // what an earlier report run killed while writing left behind
+    crate::output_locks::remove_stale(dir)?;
+    crate::output_locks::remove_stale(&img)?;
 
     // crops: the most detailed region of the reference, and where the main result errs most
     let crops = choose_crops(reference, &shown[0].color);
