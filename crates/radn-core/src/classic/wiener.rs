@@ -29,10 +29,6 @@ pub struct BlendParams {
     /// larger trusts the smoothing more, and smooths 4-spp inputs more, but ends below the
     /// input on some clean ones: chosen on the detail validation scenes, docs/detail.md).
     pub noise_scale: f32,
-    /// When set, the noise scale follows the input's local relative noise instead of being
-    /// one number: noisy inputs (few samples) are trusted to the smoothing more, clean ones
-    /// less ([`FollowNoise`]).
-    pub follow: Option<FollowNoise>,
 }
 
 impl Default for BlendParams {
@@ -40,40 +36,6 @@ impl Default for BlendParams {
         Self {
             radius: 1,
             noise_scale: 2.0,
-            follow: None,
-        }
-    }
-}
-
-/// A per-pixel noise scale `K = noise_scale · (ρ / reference)^exponent`, clamped to
-/// [[`FollowNoise::MIN_SCALE`], [`FollowNoise::MAX_SCALE`]], with `ρ` the local relative noise
-/// variance (the box mean of the noise variance over the squared box mean of the input, both
-/// over the blend's box): scale-free, so a shot's exposure does not change it.
-///
-/// Why: the window's spread of five heavy-tailed Monte Carlo samples underestimates the noise
-/// the more, the fewer samples a pixel has, so one K either gives back noise at 4 spp or keeps
-/// blur at 128 spp (the table in docs/detail.md).
-#[derive(Clone, Copy, Debug)]
-pub struct FollowNoise {
-    /// The relative noise variance at which K is `noise_scale`.
-    pub reference: f32,
-    /// How fast K grows with the relative noise (0: fixed K).
-    pub exponent: f32,
-}
-
-impl FollowNoise {
-    /// The smallest K: the Wiener gain itself.
-    pub const MIN_SCALE: f32 = 1.0;
-    /// The largest K.
-    pub const MAX_SCALE: f32 = 64.0;
-
-    /// K for a relative noise variance `rho`.
-    pub fn scale(&self, noise_scale: f32, rho: f32) -> f32 {
-        let k = noise_scale * (rho.max(0.0) / self.reference).powf(self.exponent);
-        if k.is_finite() {
-            k.clamp(Self::MIN_SCALE, Self::MAX_SCALE)
-        } else {
-            Self::MAX_SCALE
         }
     }
 }
@@ -187,39 +149,9 @@ pub fn blend_weight(
         *v = if s.is_finite() { s.max(0.0) } else { 0.0 };
     });
     let v = box_mean(&v, p.radius);
-    // the input's local mean, for the relative noise the scale may follow
-    let mean = p.follow.map(|_| {
-        let mut m = Plane::zeros(w, h, 1);
-        m.data_mut().par_iter_mut().enumerate().for_each(|(i, m)| {
-            *m = (0..c).map(|k| input.data()[k * n + i]).sum::<f32>() / c as f32;
-        });
-        box_mean(&m, p.radius)
-    });
-    let rho = |i: usize, v: f32| {
-        let m = mean.as_ref().expect("with follow").data()[i];
-        v / (m * m).max(1e-8)
-    };
-    if let Some(f) = &p.follow {
-        if tracing::enabled!(tracing::Level::DEBUG) {
-            let mut r: Vec<f32> = (0..n).map(|i| rho(i, v.data()[i])).collect();
-            if !r.is_empty() {
-                let mid = r.len() / 2;
-                let (_, m, _) = r.select_nth_unstable_by(mid, f32::total_cmp);
-                tracing::debug!(
-                    "input blend: median relative noise variance {:.3e}, noise scale {:.2}",
-                    *m,
-                    f.scale(p.noise_scale, *m)
-                );
-            }
-        }
-    }
     Plane::from_fn(w, h, 1, |x, y, _| {
         let i = y * w + x;
-        let k = match &p.follow {
-            None => p.noise_scale,
-            Some(f) => f.scale(p.noise_scale, rho(i, v.data()[i])),
-        };
-        let v = v.data()[i] * k;
+        let v = v.data()[i] * p.noise_scale;
         let bias = (change.data()[i] - v).max(0.0);
         if v + bias <= 0.0 {
             // nothing changed and no noise: either output is the same

@@ -85,15 +85,6 @@ pub struct Args {
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1, requires = "input_blend")]
     pub input_blend_radius: usize,
-    /// Network, with --input-blend: let the noise scale follow the input's local relative noise
-    /// variance ρ, as K = noise-scale · (ρ / reference)^EXPONENT (0: one K everywhere), so
-    /// that noisy inputs are smoothed and clean ones kept.
-    #[arg(long, default_value_t = 0.0, requires = "input_blend")]
-    pub input_blend_noise_exponent: f32,
-    /// Network, with --input-blend-noise-exponent: the relative noise variance at which K is
-    /// --input-blend-noise-scale.
-    #[arg(long, default_value_t = 1e-3, requires = "input_blend")]
-    pub input_blend_reference_noise: f32,
     /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
     /// the result does not depend on it). Frames are also read, aligned and written in bands of
     /// this many rows, so memory follows the tile, not the frame; 0 processes whole frames.
@@ -253,12 +244,6 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         n.refine = Some(radn_core::classic::wiener::BlendParams {
             radius: a.input_blend_radius,
             noise_scale: a.input_blend_noise_scale,
-            follow: (a.input_blend_noise_exponent != 0.0).then_some(
-                radn_core::classic::wiener::FollowNoise {
-                    reference: a.input_blend_reference_noise,
-                    exponent: a.input_blend_noise_exponent,
-                },
-            ),
         });
     }
     Ok(n)
