@@ -420,16 +420,11 @@ fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
     assert!(TileDataset::open(&out).is_ok());
     // a second scene whose 4-spp frame 5 is cut short: preparing fails part way
     let data = d.path().join("data");
-    for level in ["low", "half", "high"] {
-        let dst = data.join("a").join(level);
-        std::fs::create_dir_all(&dst).unwrap();
-        for f in 1..=9 {
-            let name = format!("frame_{f:04}.exr");
-            std::fs::copy(sample().join(level).join(&name), dst.join(&name)).unwrap();
-        }
-    }
-    for level in ["low", "half", "high"] {
-        let dst = data.join("b").join(level);
+    for (scene, level) in ["a", "b"]
+        .into_iter()
+        .flat_map(|s| ["low", "half", "high"].map(|l| (s, l)))
+    {
+        let dst = data.join(scene).join(level);
         std::fs::create_dir_all(&dst).unwrap();
         for f in 1..=9 {
             let name = format!("frame_{f:04}.exr");

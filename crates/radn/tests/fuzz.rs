@@ -204,6 +204,16 @@ fn clean<T>(r: Result<Result<T, String>, String>, file: &Path, what: &str) -> Re
     }
 }
 
+/// [`clean`] of `read(path)` run by [`in_process`]: the in-process half of every case.
+fn read_check(
+    path: &Path,
+    what: &str,
+    read: impl FnOnce(&Path) -> Result<(), String> + Send + 'static,
+) -> Result<bool, String> {
+    let q = path.to_path_buf();
+    clean(in_process(move || read(&q)), path, what)
+}
+
 /// A folder with the sample's frames 1-5 (4 spp), frame 3 replaced by `bytes`; returns the
 /// path of frame 3.
 fn sequence_with(dir: &Path, bytes: &[u8]) -> PathBuf {
@@ -225,34 +235,24 @@ fn sequence_with(dir: &Path, bytes: &[u8]) -> PathBuf {
 /// the file was read as valid.
 fn frame_case(dir: &Path, bytes: &[u8], denoise: bool) -> Result<bool, String> {
     let p = sequence_with(dir, bytes);
-    let q = p.clone();
-    let read = clean(
-        in_process(move || {
-            radn_core::exr_file::ExrFile::read(&q)
-                .map(|_| ())
-                .map_err(|e| e.to_string())
-        }),
-        &p,
-        "ExrFile::read",
-    )?;
-    let q = p.clone();
-    clean(
-        in_process(move || {
-            let mapping = radn_core::mapping::ChannelMapping::builtin("cycles").unwrap();
-            let reader = radn_core::frame::FrameReader::new(
-                mapping,
-                radn_core::frame::Requirements {
-                    albedo: true,
-                    normal: true,
-                    depth: false,
-                    motion: true,
-                },
-            );
-            reader.read(&q).map(|_| ()).map_err(|e| e.to_string())
-        }),
-        &p,
-        "FrameReader::read",
-    )?;
+    let read = read_check(&p, "ExrFile::read", |q| {
+        radn_core::exr_file::ExrFile::read(q)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    })?;
+    read_check(&p, "FrameReader::read", |q| {
+        let mapping = radn_core::mapping::ChannelMapping::builtin("cycles").unwrap();
+        let reader = radn_core::frame::FrameReader::new(
+            mapping,
+            radn_core::frame::Requirements {
+                albedo: true,
+                normal: true,
+                depth: false,
+                motion: true,
+            },
+        );
+        reader.read(q).map(|_| ()).map_err(|e| e.to_string())
+    })?;
     let ps = p.to_str().unwrap();
     radn_limited(&["inspect", ps], &p)?;
     if denoise {
@@ -300,16 +300,11 @@ fn model_case(dir: &Path, bytes: &[u8]) -> Result<bool, String> {
     std::fs::create_dir_all(dir).unwrap();
     let p = dir.join("mutated.safetensors");
     std::fs::write(&p, bytes).unwrap();
-    let q = p.clone();
-    let loads = clean(
-        in_process(move || {
-            radn_nn::model::store::load(&q, &radn_nn::burn::tensor::Device::flex())
-                .map(|_| ())
-                .map_err(|e| e.to_string())
-        }),
-        &p,
-        "store::load",
-    )?;
+    let loads = read_check(&p, "store::load", |q| {
+        radn_nn::model::store::load(&q, &radn_nn::burn::tensor::Device::flex())
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    })?;
     if !loads {
         let seq = dir.join("seq");
         sequence_with(
@@ -348,16 +343,11 @@ fn mapping_case(dir: &Path, bytes: &[u8]) -> Result<bool, String> {
     );
     let p = dir.join("mutated.toml");
     std::fs::write(&p, bytes).unwrap();
-    let q = p.clone();
-    let parses = clean(
-        in_process(move || {
-            radn_core::mapping::ChannelMapping::from_file(&q)
-                .map(|_| ())
-                .map_err(|e| e.to_string())
-        }),
-        &p,
-        "ChannelMapping::from_file",
-    )?;
+    let parses = read_check(&p, "ChannelMapping::from_file", |q| {
+        radn_core::mapping::ChannelMapping::from_file(q)
+            .map(|_| ())
+            .map_err(|e| e.to_string())
+    })?;
     let pattern = format!("{}/frame_####.exr", seq.display());
     let w = dir.join("w.exr");
     let args = [
