@@ -301,7 +301,7 @@ fn model_case(dir: &Path, bytes: &[u8]) -> Result<bool, String> {
     let p = dir.join("mutated.safetensors");
     std::fs::write(&p, bytes).unwrap();
     let loads = read_check(&p, "store::load", |q| {
-        radn_nn::model::store::load(&q, &radn_nn::burn::tensor::Device::flex())
+        radn_nn::model::store::load(q, &radn_nn::burn::tensor::Device::flex())
             .map(|_| ())
             .map_err(|e| e.to_string())
     })?;
