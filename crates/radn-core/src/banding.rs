@@ -14,6 +14,7 @@ use crate::frame::{
     add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, Frame,
     FrameReader,
 };
+use crate::noise_level::NoiseLevelHistogram;
 use crate::plane::Plane;
 
 /// Rows each one-frame hop of banded alignment needs beyond the rows its motion reaches: the
@@ -243,6 +244,8 @@ pub struct FrameStats {
     pub luminance: (f64, usize),
     /// NaN/Inf samples repaired in it.
     pub repaired: usize,
+    /// The histogram its noise level is the median of ([`crate::noise_level`]).
+    pub noise: NoiseLevelHistogram,
     /// Its first row: the channel names a result is written into, without reading the file
     /// again.
     pub names: Frame,
@@ -258,6 +261,7 @@ impl FrameStats {
             depth: None,
             luminance: (0.0, 0),
             repaired: 0,
+            noise: NoiseLevelHistogram::default(),
             names: first.rows(0..1),
         };
         let mut next = Some(first);
@@ -272,6 +276,9 @@ impl FrameStats {
             }
             stats.luminance = add_log_luminance(&band.color, stats.luminance);
             stats.repaired += band.repaired;
+            stats
+                .noise
+                .add_rows(&band.color, band.albedo.as_ref(), 0..band.height());
         }
         Ok(stats)
     }
@@ -285,6 +292,11 @@ impl FrameStats {
     /// ([`crate::frame::log_average_luminance`]).
     pub fn exposure(&self) -> f32 {
         log_average_luminance(self.luminance)
+    }
+
+    /// The frame's noise level ([`crate::noise_level`]; `None` for a black frame).
+    pub fn noise_level(&self) -> Option<f32> {
+        self.noise.median()
     }
 }
 

@@ -28,6 +28,7 @@ pub mod job;
 pub mod mapping;
 pub mod metrics;
 pub mod motion;
+pub mod noise_level;
 pub mod output;
 pub mod output_locks;
 pub mod passes;

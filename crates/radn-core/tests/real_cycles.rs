@@ -5,10 +5,12 @@
 use std::path::PathBuf;
 
 use radn_core::align::{align_window, AlignParams};
+use radn_core::banding::{FrameStats, STATS_ROWS};
 use radn_core::exr_file::{ExrFile, SampleKind};
 use radn_core::frame::{Frame, FrameReader, Requirements};
 use radn_core::mapping::ChannelMapping;
 use radn_core::metrics::{mse, tonemap_plane};
+use radn_core::noise_level::NoiseLevelHistogram;
 
 fn sample(level: &str, frame: i64) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!(
@@ -168,5 +170,31 @@ fn warping_brings_side_frames_closer_to_the_centre_reference() {
             with_mix < warped,
             "offset {offset}: centre mixing made it worse"
         );
+    }
+}
+
+#[test]
+fn the_noise_level_falls_with_the_sample_count_and_bands_see_the_whole_frames() {
+    let reader = FrameReader::new(
+        ChannelMapping::builtin("cycles").unwrap(),
+        Requirements::DENOISE,
+    );
+    let mut last = f32::INFINITY;
+    for level in ["low", "half", "high"] {
+        let path = sample(level, 5);
+        let (frame, _) = reader.read(&path).unwrap();
+        let whole = NoiseLevelHistogram::of_frame(&frame.color, frame.albedo.as_ref())
+            .median()
+            .unwrap();
+        // the statistics pass reads 64-row bands (and the sample is 100 rows: one partial)
+        let banded = FrameStats::gather(&reader, &path, frame.height(), STATS_ROWS)
+            .unwrap()
+            .noise_level()
+            .unwrap();
+        assert_eq!(whole, banded, "{level}");
+        eprintln!("{level}: noise level {whole:.5}");
+        // 4, 11 and 32 spp: each level at least twice below the last
+        assert!(whole < 0.5 * last, "{level}: {whole} after {last}");
+        last = whole;
     }
 }

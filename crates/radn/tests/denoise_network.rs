@@ -34,7 +34,7 @@ fn model_reading(dir: &Path, demodulate: Option<f32>, inputs: InputConfig) -> Pa
 #[test]
 fn network_denoise_applies_one_kernel_to_beauty_aovs_and_alpha() {
     // plain kernels, kernels on albedo-demodulated colour and AOVs (alpha stays plain), and
-    // the result blended with the input by one per-pixel weight (--input-blend)
+    // the result blended with the input by one per-pixel weight (--input-blend 2)
     for (demodulate, blend) in [(None, false), (Some(0.25), false), (Some(0.25), true)] {
         one_kernel_for_beauty_aovs_and_alpha(demodulate, blend);
     }
@@ -63,7 +63,7 @@ fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>, input_blend: bo
         "40",
     ];
     if input_blend {
-        args.push("--input-blend");
+        args.extend(["--input-blend", "2"]);
     }
     let res = radn(&args);
     assert!(
@@ -222,8 +222,9 @@ fn banded_denoising_equals_whole_frame_denoising() {
     // `--tile N` reads and denoises each frame in bands of N rows, each band from only the rows
     // of its window it reaches; `--tile 0` aligns and denoises whole frames. The network
     // normalises by the frame's exposure and reads the noise estimate: bands use the whole
-    // frame's exposure. The result is blended with the input (--input-blend), whose boxes
-    // read rows beyond each band.
+    // frame's exposure. The result is blended with the input (--input-blend 2), whose boxes
+    // read rows beyond each band (with `auto`, bands also get the whole frame's noise level:
+    // radn-core's real_cycles test).
     let d = tempfile::tempdir().unwrap();
     let inputs = InputConfig {
         exposure: true,
@@ -250,6 +251,7 @@ fn banded_denoising_equals_whole_frame_denoising() {
             "--tile",
             tile,
             "--input-blend",
+            "2",
         ]);
         // frames 3 and 7 have windows clamped at the sequence's ends
         [3, 5, 7].map(|f| ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap())
@@ -276,4 +278,34 @@ fn banded_denoising_equals_whole_frame_denoising() {
         }
     }
     assert!(compared >= 3 * 10 * 176 * 300, "{compared}");
+}
+
+#[test]
+fn the_automatic_input_blend_follows_each_frames_noise_level() {
+    // `--input-blend` alone is `auto`: the noise scale follows the frame's noise level, and a
+    // frame as noisy as the 4-spp sample is left unblended while the 32-spp one is blended
+    let d = tempfile::tempdir().unwrap();
+    let m = model(d.path());
+    let ms = m.to_str().unwrap();
+    for (level, blended) in [("low", false), ("high", true)] {
+        let input = format!("{}/{level}/frame_####.exr", sample().display());
+        let green = |blend: &[&str]| {
+            let out = format!("{}/{level}{}/f_####.exr", d.path().display(), blend.len());
+            let mut args = vec![
+                "denoise", "--method", "network", "--model", ms, "-i", &input, "-o", &out,
+                "--frames", "5-5",
+            ];
+            args.extend(blend);
+            radn_ok(&args);
+            ExrFile::read(out.replace("####", "0005"))
+                .unwrap()
+                .channel_f32("ViewLayer.Combined.G")
+                .unwrap()
+        };
+        let plain = green(&[]);
+        let auto = green(&["--input-blend"]);
+        let fixed = green(&["--input-blend", "2", "--input-blend-radius", "1"]);
+        assert_ne!(plain, fixed, "{level}: a fixed blend changed nothing");
+        assert_eq!(plain != auto, blended, "{level}");
+    }
 }

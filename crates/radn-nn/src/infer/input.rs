@@ -5,6 +5,7 @@ use radn_core::align::AlignedWindow;
 use radn_core::frame::{
     add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, FAR_DEPTH,
 };
+use radn_core::noise_level::NoiseLevelHistogram;
 
 use crate::model::config::{InputConfig, INPUT_CHANNELS};
 
@@ -57,14 +58,17 @@ impl Region {
     }
 }
 
-/// The per-frame numbers a window's features are normalised by. They are statistics of the
-/// whole centre frame, so that its tiles and bands see the same features as the whole frame.
+/// The per-frame numbers a window's features are normalised by, and its input blend is set by.
+/// They are statistics of the whole centre frame, so that its tiles and bands see the same
+/// features (and blend) as the whole frame.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct FeatureScales {
     /// The centre frame's mean geometry depth (1 without depth).
     pub depth: f32,
     /// The centre frame's exposure: its log-average luminance (1 for a black frame).
     pub exposure: f32,
+    /// The centre frame's noise level ([`radn_core::noise_level`]; `None` for a black frame).
+    pub noise_level: Option<f32>,
 }
 
 impl FeatureScales {
@@ -76,6 +80,7 @@ impl FeatureScales {
                 mean_geometry_depth(add_geometry_depths(d, (0.0, 0)))
             }),
             exposure: log_average_luminance(add_log_luminance(&c.color, (0.0, 0))),
+            noise_level: NoiseLevelHistogram::of_frame(&c.color, c.albedo.as_ref()).median(),
         }
     }
 }

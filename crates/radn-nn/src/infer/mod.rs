@@ -5,6 +5,7 @@
 //! measured in [`utilization`].
 
 pub mod input;
+pub mod input_blend;
 pub mod utilization;
 
 use burn::tensor::{Device, Tensor, TensorData};
@@ -13,13 +14,14 @@ use std::ops::Range;
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
 use radn_core::classic::wiener::{
-    blend, blend_weight, window_noise_variance, BlendParams, LOCAL_VARIANCE_RADIUS,
+    blend, blend_weight, window_noise_variance, LOCAL_VARIANCE_RADIUS,
 };
 use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
 use radn_core::Plane;
 
 use crate::infer::input::{network_input, FeatureScales, Region};
+use crate::infer::input_blend::InputBlend;
 use crate::model::demod::{filter, Demodulation};
 use crate::model::Denoiser;
 
@@ -38,12 +40,12 @@ pub struct NetworkDenoiser {
     pub device: Device,
     /// Alignment options.
     pub align: AlignParams,
-    /// The refine blend: per pixel, the network's result is blended with the input by the
-    /// classic denoiser's Wiener gain ([`radn_core::classic::wiener`]), so that it keeps only
-    /// the change the input's noise explains and does not average a clean input's detail away.
-    /// The weight is computed from the beauty and applied to every signal (still one linear
-    /// operator per signal; alpha stays in range). `None`: the kernels' result as it is.
-    pub refine: Option<BlendParams>,
+    /// The input blend ([`input_blend`]): per pixel, the network's result is blended with the
+    /// input by the classic denoiser's Wiener gain, so that it keeps only the change the
+    /// input's noise explains and does not average a clean input's detail away. The weight is
+    /// computed from the beauty and applied to every signal (still one linear operator per
+    /// signal; alpha stays in range). `None`: the kernels' result as it is.
+    pub refine: Option<InputBlend>,
 }
 
 impl NetworkDenoiser {
@@ -76,7 +78,8 @@ impl NetworkDenoiser {
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
-        let out = match &self.refine {
+        let blend_params = self.refine.and_then(|b| b.params(scales.noise_level));
+        let out = match &blend_params {
             None => self.filtered_rows(win, scales, rows.clone()),
             Some(p) => {
                 // the blend's boxes read the result `radius` rows beyond `rows`
@@ -354,7 +357,18 @@ impl BandDenoiser for NetworkDenoiser {
         let scales = FeatureScales {
             depth: centre.mean_depth(),
             exposure: centre.exposure(),
+            noise_level: centre.noise_level(),
         };
+        if out.start == 0 {
+            if let Some(b) = self.refine {
+                tracing::debug!(
+                    frame = %centre.names.path.display(),
+                    noise_level = ?scales.noise_level,
+                    noise_scale = ?b.params(scales.noise_level).map(|p| p.noise_scale),
+                    "input blend"
+                );
+            }
+        }
         Ok(self.denoise_rows(&win, scales, out))
     }
 }
@@ -372,6 +386,7 @@ fn centre_values(win: &AlignedWindow, rows: Range<usize>) -> Plane {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::infer::input_blend::BlendStrength;
     use crate::model::config::NetConfig;
     use radn_core::align::AlignedFrame;
 
@@ -414,7 +429,10 @@ mod tests {
     fn the_input_blend_keeps_a_noise_free_input_and_follows_a_noisy_one() {
         let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
         let mut n = NetworkDenoiser::new(d, Device::flex());
-        n.refine = Some(BlendParams::default());
+        n.refine = Some(InputBlend {
+            radius: 1,
+            strength: BlendStrength::Fixed(2.0),
+        });
         // five identical frames: no noise, so nothing the kernels change is explained by it
         let mut still = window(24, 20);
         let centre = still.frames[2].clone();

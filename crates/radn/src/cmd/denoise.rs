@@ -8,6 +8,7 @@ use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
 use radn_core::sequence::{sequence_files, SequencePattern};
+use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
 
 use crate::input::ChannelArgs;
 
@@ -75,15 +76,15 @@ pub struct Args {
     pub threshold: Option<f32>,
     /// Network: blend the result with the input per pixel by the Wiener gain of the change
     /// against the input's noise (the classic denoiser's guided blend), so that detail the
-    /// noise does not explain is kept from the input.
-    #[arg(long)]
-    pub input_blend: bool,
-    /// Network, with --input-blend: how many noise variances of change are still taken as
-    /// noise (larger keeps more of the network's result).
-    #[arg(long, default_value_t = 2.0, requires = "input_blend")]
-    pub input_blend_noise_scale: f32,
+    /// noise does not explain is kept from the input. `auto` (also `--input-blend` alone):
+    /// how many noise variances of change count as noise follows each frame's noise level
+    /// (none at 4 spp, about 2 from 64 spp up); a number K: that many for every frame (larger
+    /// keeps more of the network's result); `off`: the kernels' result as it is.
+    #[arg(long, value_name = "auto|off|K", default_value = "auto", num_args = 0..=1,
+          default_missing_value = "auto", value_parser = parse_input_blend)]
+    pub input_blend: BlendChoice,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
-    #[arg(long, default_value_t = 1, requires = "input_blend")]
+    #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
     /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
     /// the result does not depend on it). Frames are also read, aligned and written in bands of
@@ -240,11 +241,25 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     }
     n.tile = a.tile;
     n.batch = a.batch as usize;
-    if a.input_blend {
-        n.refine = Some(radn_core::classic::wiener::BlendParams {
-            radius: a.input_blend_radius,
-            noise_scale: a.input_blend_noise_scale,
-        });
-    }
+    n.refine = a.input_blend.0.map(|strength| InputBlend {
+        radius: a.input_blend_radius,
+        strength,
+    });
     Ok(n)
+}
+
+/// `--input-blend`'s value: how the noise scale is chosen, `None` for `off`.
+#[derive(Clone, Copy, Debug)]
+pub struct BlendChoice(pub Option<BlendStrength>);
+
+/// Parses `--input-blend`: `auto`, `off` or a positive noise scale.
+fn parse_input_blend(s: &str) -> Result<BlendChoice, String> {
+    match s {
+        "auto" => Ok(BlendChoice(Some(BlendStrength::FollowLevel))),
+        "off" => Ok(BlendChoice(None)),
+        k => match k.parse::<f32>() {
+            Ok(k) if k.is_finite() && k > 0.0 => Ok(BlendChoice(Some(BlendStrength::Fixed(k)))),
+            _ => Err(format!("'{k}' is not auto, off or a positive number")),
+        },
+    }
 }
