@@ -244,7 +244,7 @@ pub struct FrameStats {
     pub luminance: (f64, usize),
     /// NaN/Inf samples repaired in it.
     pub repaired: usize,
-    /// The histogram its noise level is the median of ([`crate::noise_level`]).
+    /// The histogram its noise level is taken from ([`crate::noise_level`]).
     pub noise: NoiseLevelHistogram,
     /// Its first row: the channel names a result is written into, without reading the file
     /// again.
@@ -296,7 +296,7 @@ impl FrameStats {
 
     /// The frame's noise level ([`crate::noise_level`]; `None` for a black frame).
     pub fn noise_level(&self) -> Option<f32> {
-        self.noise.median()
+        self.noise.level()
     }
 }
 

@@ -184,7 +184,7 @@ fn the_noise_level_falls_with_the_sample_count_and_bands_see_the_whole_frames() 
         let path = sample(level, 5);
         let (frame, _) = reader.read(&path).unwrap();
         let whole = NoiseLevelHistogram::of_frame(&frame.color, frame.albedo.as_ref())
-            .median()
+            .level()
             .unwrap();
         // the statistics pass reads 64-row bands (and the sample is 100 rows: one partial)
         let banded = FrameStats::gather(&reader, &path, frame.height(), STATS_ROWS)

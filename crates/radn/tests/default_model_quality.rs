@@ -1,7 +1,7 @@
 //! The model compiled into `radn` (models/default.safetensors) against its input and the
 //! classic denoiser on the shipped Cycles sample, so a weaker model cannot be shipped by
 //! mistake. The classic denoiser's guided filter follows the noise (issue 18); at 32 spp it is
-//! 0.8 dB behind (33.85 vs 34.67 dB for the shipped model with its default input blend).
+//! 1.1 dB behind (33.85 vs 34.97 dB for the shipped model with its default input blend).
 
 mod common;
 
@@ -36,7 +36,7 @@ fn mean_psnr_against(dir: &std::path::Path, name: &str, against: &str) -> f64 {
 fn default_model_beats_its_input_and_the_classic_denoiser_at_4_spp_on_the_sample() {
     let d = tempfile::tempdir().unwrap();
     // measured with the shipped model (stage 5, models/README.md) and `--input-blend auto`:
-    // 31.04 vs classic 30.30 dB at 4 spp (the blend leaves a frame this noisy alone), 34.67 vs
+    // 31.04 vs classic 30.30 dB at 4 spp (the blend leaves a frame this noisy alone), 34.97 vs
     // 33.85 dB at 32 spp (34.26 without the blend; inputs 19.29 and 28.82 dB); the previous
     // default (stage 4, no blend) scored 31.20 and 33.66, and would fail the 32-spp margin
     for (level, margin) in [("low", 0.7), ("high", 0.5)] {
@@ -60,10 +60,11 @@ fn default_model_beats_its_input_and_the_classic_denoiser_at_4_spp_on_the_sample
 #[test]
 fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
     // the paper's strength control (its Fig. 3): the shipped model's kernels are normalised
-    // before η_t (`norm_eta`), so t drops the weak taps. Measured at 32 spp with the default
-    // input blend: from the default t = 1/(2K) = 0.004 to 0.0075, PSNR against the input
-    // 28.71 → 28.93 dB (and against the reference 34.67 → 34.89; without the blend 28.42 →
-    // 28.76 and 34.26 → 34.73); stage 4's raw-weight η moved by 0.04 dB over the same range.
+    // before η_t (`norm_eta`), so t drops the weak taps. This tests the kernels' threshold, so
+    // without the input blend (which pulls toward the input itself: with it, 29.18 → 29.31 dB
+    // against the input over the same range). Measured at 32 spp: from the default
+    // t = 1/(2K) = 0.004 to 0.0075, PSNR against the input 28.42 → 28.76 dB (and against the
+    // reference 34.26 → 34.73); stage 4's raw-weight η moved by 0.04 dB over the same range.
     let d = tempfile::tempdir().unwrap();
     let input = format!("{}/high/frame_####.exr", sample().display());
     let mut closeness = Vec::new();
@@ -79,6 +80,8 @@ fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
             "3-7",
             "--threshold",
             t,
+            "--input-blend",
+            "off",
         ]);
         closeness.push(mean_psnr_against(
             &d.path().join(format!("t{t}")),
@@ -87,7 +90,7 @@ fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
         ));
     }
     assert!(
-        closeness[1] > closeness[0] + 0.15,
+        closeness[1] > closeness[0] + 0.2,
         "PSNR against the input at t = 0.004 and 0.0075: {closeness:?}"
     );
 }

@@ -80,7 +80,7 @@ impl FeatureScales {
                 mean_geometry_depth(add_geometry_depths(d, (0.0, 0)))
             }),
             exposure: log_average_luminance(add_log_luminance(&c.color, (0.0, 0))),
-            noise_level: NoiseLevelHistogram::of_frame(&c.color, c.albedo.as_ref()).median(),
+            noise_level: NoiseLevelHistogram::of_frame(&c.color, c.albedo.as_ref()).level(),
         }
     }
 }

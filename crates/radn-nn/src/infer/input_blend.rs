@@ -57,11 +57,11 @@ impl InputBlend {
 /// The smallest noise scale the level gives (that of the cleanest frames).
 pub const MIN_NOISE_SCALE: f32 = 2.0;
 /// The noise level at and below which the scale is [`MIN_NOISE_SCALE`].
-pub const LEVEL_AT_MIN_SCALE: f32 = 3e-3;
+pub const LEVEL_AT_MIN_SCALE: f32 = 0.25;
 /// How steeply the scale grows with the level above [`LEVEL_AT_MIN_SCALE`] (a power).
 pub const SCALE_EXPONENT: f32 = 1.0;
 /// Above this scale the blend would hardly change the result: the frame is left unblended.
-pub const MAX_NOISE_SCALE: f32 = 16.0;
+pub const MAX_NOISE_SCALE: f32 = 8.0;
 
 /// The noise scale for a frame of noise level `level`:
 /// `MIN_NOISE_SCALE · max(1, level / LEVEL_AT_MIN_SCALE)^SCALE_EXPONENT`, `None` (no blend)
