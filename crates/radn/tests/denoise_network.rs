@@ -282,15 +282,16 @@ fn banded_denoising_equals_whole_frame_denoising() {
 
 #[test]
 fn the_automatic_input_blend_follows_each_frames_noise_level() {
-    // `--input-blend` alone is `auto`: the noise scale follows the frame's noise level, and a
-    // frame as noisy as the 4-spp sample is left unblended while the 32-spp one is blended
+    // the default, and `--input-blend` alone, is `auto`: the noise scale follows the frame's
+    // noise level, and a frame as noisy as the 4-spp sample is left unblended while the 32-spp
+    // one is blended
     let d = tempfile::tempdir().unwrap();
     let m = model(d.path());
     let ms = m.to_str().unwrap();
     for (level, blended) in [("low", false), ("high", true)] {
         let input = format!("{}/{level}/frame_####.exr", sample().display());
-        let green = |blend: &[&str]| {
-            let out = format!("{}/{level}{}/f_####.exr", d.path().display(), blend.len());
+        let green = |name: &str, blend: &[&str]| {
+            let out = format!("{}/{level}-{name}/f_####.exr", d.path().display());
             let mut args = vec![
                 "denoise", "--method", "network", "--model", ms, "-i", &input, "-o", &out,
                 "--frames", "5-5",
@@ -302,10 +303,15 @@ fn the_automatic_input_blend_follows_each_frames_noise_level() {
                 .channel_f32("ViewLayer.Combined.G")
                 .unwrap()
         };
-        let plain = green(&[]);
-        let auto = green(&["--input-blend"]);
-        let fixed = green(&["--input-blend", "2", "--input-blend-radius", "1"]);
-        assert_ne!(plain, fixed, "{level}: a fixed blend changed nothing");
-        assert_eq!(plain != auto, blended, "{level}");
+        let off = green("off", &["--input-blend", "off"]);
+        let default = green("default", &[]);
+        let auto = green("auto", &["--input-blend"]);
+        let fixed = green(
+            "fixed",
+            &["--input-blend", "5", "--input-blend-radius", "1"],
+        );
+        assert!(off != fixed, "{level}: a fixed blend changed nothing");
+        assert!(default == auto, "{level}: the default is not auto");
+        assert_eq!(off != auto, blended, "{level}: blended by auto");
     }
 }
