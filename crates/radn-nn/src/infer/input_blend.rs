@@ -83,7 +83,11 @@ mod tests {
         assert_eq!(clean, MIN_NOISE_SCALE);
         let middle = noise_scale_for_level(Some(LEVEL_AT_MIN_SCALE * 2.0)).unwrap();
         assert!(middle > clean && middle <= MAX_NOISE_SCALE);
-        assert_eq!(noise_scale_for_level(Some(1.0)), None);
+        // the largest scale that still blends, and a level just above it
+        let edge = LEVEL_AT_MIN_SCALE * MAX_NOISE_SCALE / MIN_NOISE_SCALE;
+        assert_eq!(noise_scale_for_level(Some(edge)), Some(MAX_NOISE_SCALE));
+        assert_eq!(noise_scale_for_level(Some(1.01 * edge)), None);
+        assert_eq!(noise_scale_for_level(Some(10.0)), None);
         assert_eq!(noise_scale_for_level(None), None);
         assert_eq!(noise_scale_for_level(Some(f32::NAN)), None);
     }
