@@ -55,8 +55,25 @@ fn end_quietly_on_broken_pipes() {
     }
 }
 
+/// Keeps freed large buffers in the process for reuse. glibc serves every allocation above its
+/// mmap threshold (at most 32 MiB) with fresh pages from the kernel and returns them on free, so
+/// each of the network's tile-sized activations (about 100 MB for a 256-pixel tile of five
+/// frames) cost a page fault per 4 KiB: 76 s of system time of a 200 s 1080p frame
+/// (docs/benchmarks.md, "Where the time goes"). With the thresholds raised, freed blocks are
+/// reused; the peak resident memory stays that of the largest tile's working set.
+fn reuse_large_allocations() {
+    #[cfg(all(target_os = "linux", target_env = "gnu"))]
+    // SAFETY: called first thing in main, before any thread exists or anything is allocated
+    // through these settings; mallopt only changes the allocator's thresholds.
+    unsafe {
+        libc::mallopt(libc::M_MMAP_THRESHOLD, i32::MAX);
+        libc::mallopt(libc::M_TRIM_THRESHOLD, i32::MAX);
+    }
+}
+
 fn main() -> std::process::ExitCode {
     end_quietly_on_broken_pipes();
+    reuse_large_allocations();
     let cli = Cli::parse();
     let level = match cli.verbose {
         0 => "info",

@@ -3,12 +3,12 @@
 
 use burn::module::Module;
 use burn::nn::conv::Conv2d;
-use burn::tensor::activation::relu;
 use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor};
 
 use crate::model::config::Backbone;
+use crate::model::cpu::conv::conv2d;
 use crate::model::layers::{conv3, conv_flops, widen_conv_input, DoubleConv, ResBlock};
 use crate::model::ra_block::RobustAverage;
 
@@ -78,7 +78,7 @@ impl ResNet {
 
     /// `[batch · frames, input channels, H, W]` → head features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let mut h = relu(self.input.forward(x));
+        let mut h = conv2d(&self.input, x, true);
         let mut skips = Vec::new();
         let mut next_ra = 0;
         for (i, block) in self.blocks.iter().enumerate() {

@@ -6,7 +6,10 @@
 use burn::tensor::activation::softmax;
 use burn::tensor::module::unfold4d;
 use burn::tensor::ops::{PadMode, UnfoldOptions};
-use burn::tensor::Tensor;
+use burn::tensor::{Tensor, TensorData};
+
+use crate::model::cpu::apply::apply_kernels;
+use crate::model::cpu::is_cpu_inference;
 
 use crate::model::config::Activation;
 
@@ -107,6 +110,18 @@ impl Kernels {
             "values must have one slice per kernel frame"
         );
         let k = self.size;
+        let device = values.device();
+        if is_cpu_inference(&device) {
+            let weights = self.weights.clone().into_data();
+            let values = values.into_data();
+            let out = apply_kernels(
+                weights.as_slice::<f32>().expect("f32 kernel weights"),
+                values.as_slice::<f32>().expect("f32 values"),
+                [b, t, c, h, w],
+                k,
+            );
+            return Tensor::from_data(TensorData::new(out, [b, c, h, w]), &device);
+        }
         let k2 = k * k;
         let pad = k / 2;
         let padded = values

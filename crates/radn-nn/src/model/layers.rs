@@ -1,9 +1,9 @@
 //! Small building blocks shared by the backbones.
 
+use crate::model::cpu::conv::conv2d;
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::PaddingConfig2d;
-use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor};
 
 /// A 3×3 convolution that keeps the image size.
@@ -68,7 +68,7 @@ impl ResBlock {
 
     /// Applies the block.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        x.clone() + self.b.forward(relu(self.a.forward(x)))
+        x.clone() + conv2d(&self.b, conv2d(&self.a, x, true), false)
     }
 
     /// Forward FLOPs on a map of `pixels` pixels.
@@ -100,7 +100,7 @@ impl DoubleConv {
 
     /// Applies the block.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        relu(self.b.forward(relu(self.a.forward(x))))
+        conv2d(&self.b, conv2d(&self.a, x, true), true)
     }
 
     /// Gives the block `cin` input channels ([`widen_conv_input`]).

@@ -7,6 +7,7 @@
 
 pub mod backbone;
 pub mod config;
+pub mod cpu;
 pub mod demod;
 pub mod kernel;
 pub mod layers;
@@ -17,11 +18,12 @@ pub mod store;
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::nn::Initializer;
-use burn::tensor::activation::{relu, sigmoid, softmax};
+use burn::tensor::activation::{sigmoid, softmax};
 use burn::tensor::{Device, Tensor};
 
 use crate::model::backbone::FrameNet;
 use crate::model::config::{Arch, InputConfig, NetConfig};
+use crate::model::cpu::conv::conv2d;
 use crate::model::kernel::{eta, Kernels};
 use crate::model::layers::{conv3, conv_flops};
 use crate::model::multiscale::{downsample, pad_to, padded_size, MultiScaleKernels};
@@ -394,7 +396,7 @@ impl Denoiser {
         match &self.net {
             Network::Ra(n) if self.config.scales() == 1 => {
                 let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
-                let raw = n.head.forward(feats).reshape([b, frames * k2, h, w]);
+                let raw = conv2d(&n.head, feats, false).reshape([b, frames * k2, h, w]);
                 let weights = eta(raw, t, act, centre * k2 + k2 / 2);
                 Prediction::Single(Kernels {
                     weights,
@@ -419,9 +421,7 @@ impl Denoiser {
                     } else {
                         &n.coarse_heads[s - 1]
                     };
-                    let raw = head
-                        .forward(feats.clone())
-                        .reshape([b, frames * k2, hs, ws]);
+                    let raw = conv2d(head, feats.clone(), false).reshape([b, frames * k2, hs, ws]);
                     kernels.push(Kernels {
                         weights: eta(raw, t, act, centre * k2 + k2 / 2),
                         frames,
@@ -433,7 +433,7 @@ impl Denoiser {
                             .reshape([b, frames, fc, hs, ws])
                             .narrow(1, centre, 1)
                             .reshape([b, fc, hs, ws]);
-                        blend.push(sigmoid(n.blend_heads[s].forward(centre_feats)));
+                        blend.push(sigmoid(conv2d(&n.blend_heads[s], centre_feats, false)));
                     }
                 }
                 Prediction::MultiScale(MultiScaleKernels {
@@ -444,7 +444,7 @@ impl Denoiser {
             }
             Network::Spatial(n) => {
                 let x = input.narrow(1, centre, 1).reshape([b, c, h, w]);
-                let raw = n.head.forward(n.backbone.forward(x));
+                let raw = conv2d(&n.head, n.backbone.forward(x), false);
                 Prediction::Single(Kernels {
                     weights: eta(raw, t, act, k2 / 2),
                     frames: 1,
@@ -454,10 +454,10 @@ impl Denoiser {
             Network::Tkpcn(n) => {
                 let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
                 let fc = feats.dims()[1];
-                let spatial = softmax(n.spatial_head.forward(feats.clone()), 1);
+                let spatial = softmax(conv2d(&n.spatial_head, feats.clone(), false), 1);
                 let joined = feats.reshape([b, frames * fc, h, w]);
-                let tfeat = relu(n.temporal_b.forward(relu(n.temporal_a.forward(joined))));
-                let raw = n.temporal_head.forward(tfeat);
+                let tfeat = conv2d(&n.temporal_b, conv2d(&n.temporal_a, joined, true), true);
+                let raw = conv2d(&n.temporal_head, tfeat, false);
                 let temporal = eta(raw, t, act, centre * k2 + k2 / 2);
                 Prediction::TwoStage {
                     spatial: Kernels {

@@ -6,8 +6,10 @@
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
 use burn::tensor::activation::{relu, sigmoid};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 
+use crate::model::cpu::conv::{conv2d, HostConv};
+use crate::model::cpu::ra::{robust_average, RobustAverageConvs};
 use crate::model::layers::{conv3, conv_flops};
 
 /// Bias of the weight predictor at initialisation: sigmoid(−2) ≈ 0.12, so a new block starts
@@ -88,8 +90,34 @@ impl RobustAverage {
         let [bt, c, hh, ww] = h.dims();
         let t = self.frames;
         let b = bt / t;
+        let device = h.device();
+        if [&self.hidden_self, &self.hidden_avg, &self.weight]
+            .iter()
+            .all(|conv| HostConv::applies(conv, &device))
+        {
+            let convs = RobustAverageConvs {
+                hidden_self: HostConv::of(&self.hidden_self),
+                hidden_avg: HostConv::of(&self.hidden_avg),
+                weight: HostConv::of(&self.weight),
+            };
+            let data = h.into_data();
+            let out = robust_average(
+                data.as_slice::<f32>().expect("f32 latent maps"),
+                [b, t, c, hh, ww],
+                &convs,
+            );
+            return Tensor::from_data(TensorData::new(out, [bt, c, hh, ww]), &device);
+        }
+        self.forward_with_burn(h)
+    }
+
+    /// [`RobustAverage::forward`] as burn operations (training, other backends).
+    fn forward_with_burn(&self, h: Tensor<4>) -> Tensor<4> {
+        let [bt, c, hh, ww] = h.dims();
+        let t = self.frames;
+        let b = bt / t;
         // the h_i half of the first predictor convolution, for every frame at once
-        let pre = self.hidden_self.forward(h.clone());
+        let pre = conv2d(&self.hidden_self, h.clone(), false);
         let hc = pre.dims()[1];
         let pre: Tensor<5> = pre.reshape([b, t, hc, hh, ww]);
         let h5: Tensor<5> = h.reshape([b, t, c, hh, ww]);
@@ -105,10 +133,8 @@ impl RobustAverage {
                 .collect();
             let avg = robust_mean(others);
             let pre_i = pre.clone().narrow(1, i, 1).reshape([b, hc, hh, ww]);
-            let w = sigmoid(
-                self.weight
-                    .forward(relu(pre_i + self.hidden_avg.forward(avg.clone()))),
-            );
+            let hidden = relu(pre_i + conv2d(&self.hidden_avg, avg.clone(), false));
+            let w = sigmoid(conv2d(&self.weight, hidden, false));
             let keep = w.clone().neg().add_scalar(1.0);
             frames[i] = frames[i].clone() * keep + avg * w;
         }
@@ -168,6 +194,42 @@ mod tests {
         .try_to_vec::<f32>()
         .unwrap();
         assert_eq!(out, vec![2.0]);
+    }
+
+    #[test]
+    fn the_fused_cpu_block_equals_burns_operations() {
+        let device = Device::flex();
+        // an even bias, so that the predicted weights spread over (0, 1)
+        let block = RobustAverage::new(16, 5, &device).with_weight_bias(0.0);
+        let (b, t, c, h, w) = (2, 5, 16, 9, 13);
+        let n = b * t * c * h * w;
+        let x = t4(
+            (0..n)
+                .map(|i| ((i * 7919) % 211) as f32 / 40.0 - 2.5)
+                .collect(),
+            [b * t, c, h, w],
+        );
+        let fused = block
+            .forward(x.clone())
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let burn = block
+            .forward_with_burn(x.clone())
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let input = x.into_data().try_into_vec::<f32>().unwrap();
+        let worst = fused
+            .iter()
+            .zip(&burn)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        let moved = burn
+            .iter()
+            .zip(&input)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(moved > 0.1, "the block changes its input ({moved})");
+        assert!(worst < 1e-5, "fused and burn differ by {worst}");
     }
 
     #[test]

@@ -1,0 +1,326 @@
+//! The convolutions of inference on the CPU, as blocked im2col + GEMM straight into the
+//! NCHW output (the `gemm` crate's kernels, rows of the image in parallel with rayon), with the
+//! bias and an optional ReLU applied while the block is in cache.
+//!
+//! Why: burn's `flex` backend converts every convolution's input to NHWC on one thread and
+//! scatters the GEMM result back pixel by pixel; on 2 cores that left the GEMM kernels about a
+//! third of a denoising run (docs/benchmarks.md, "Convolutions on the CPU"). This path computes
+//! the same function (equal to burn's to float rounding, tested) and is used only where it
+//! applies: the `flex` device without autodiff, stride 1, no dilation, one group, odd kernels
+//! with same-size padding. Everything else — training, other backends, other shapes — runs
+//! burn's own convolution.
+
+use burn::nn::conv::Conv2d;
+use burn::nn::PaddingConfig2d;
+use burn::tensor::activation::relu;
+use burn::tensor::{Device, Tensor, TensorData};
+use rayon::prelude::*;
+
+use crate::model::cpu::{is_cpu_inference, SendPtr};
+
+/// About this many output pixels share one im2col block: its columns (K × pixels floats) stay
+/// within a core's L2 cache for the widths radn uses, and a 256-pixel tile's rows still split
+/// into enough blocks for both cores.
+const BLOCK_PIXELS: usize = 1024;
+
+/// `conv(x)`, followed by a ReLU when `relu_after`; the fast CPU path where it applies.
+pub fn conv2d(conv: &Conv2d, x: Tensor<4>, relu_after: bool) -> Tensor<4> {
+    if applies(conv, &x.device()) {
+        return fast_conv2d(conv, x, relu_after);
+    }
+    let y = conv.forward(x);
+    if relu_after {
+        relu(y)
+    } else {
+        y
+    }
+}
+
+/// Whether the fast path computes `conv` on `device`.
+fn applies(conv: &Conv2d, device: &Device) -> bool {
+    let [kh, kw] = conv.kernel_size;
+    is_cpu_inference(device)
+        && conv.stride == [1, 1]
+        && conv.dilation == [1, 1]
+        && conv.groups == 1
+        && kh % 2 == 1
+        && kw % 2 == 1
+        && matches!(conv.padding, PaddingConfig2d::Same)
+}
+
+fn fast_conv2d(conv: &Conv2d, x: Tensor<4>, relu_after: bool) -> Tensor<4> {
+    let device = x.device();
+    let [b, cin, h, w] = x.dims();
+    let weight = conv.weight.val();
+    let [cout, wcin, kh, kw] = weight.dims();
+    assert_eq!(
+        cin, wcin,
+        "the input has {cin} channels, the convolution expects {wcin}"
+    );
+    let weight = weight.into_data();
+    let bias = conv.bias.as_ref().map(|b| b.val().into_data());
+    let input = x.into_data();
+    let out = conv_same_nchw(
+        input.as_slice::<f32>().expect("f32 input"),
+        [b, cin, h, w],
+        weight.as_slice::<f32>().expect("f32 weights"),
+        [cout, kh, kw],
+        bias.as_ref()
+            .map(|b| b.as_slice::<f32>().expect("f32 bias")),
+        relu_after,
+    );
+    Tensor::from_data(TensorData::new(out, [b, cout, h, w]), &device)
+}
+
+/// A convolution's weights copied to the host once, for CPU paths that run it several times
+/// (a Robust Average block's predictor runs once per frame of the window).
+pub struct HostConv {
+    weight: Vec<f32>,
+    bias: Option<Vec<f32>>,
+    cout: usize,
+    cin: usize,
+    kernel: [usize; 2],
+}
+
+impl HostConv {
+    /// The weights of `conv`, which must be a convolution the fast path computes
+    /// ([`HostConv::applies`]).
+    pub fn of(conv: &Conv2d) -> Self {
+        let weight = conv.weight.val();
+        let [cout, cin, kh, kw] = weight.dims();
+        let data = |t: TensorData| t.try_into_vec::<f32>().expect("f32 weights");
+        Self {
+            weight: data(weight.into_data()),
+            bias: conv.bias.as_ref().map(|b| data(b.val().into_data())),
+            cout,
+            cin,
+            kernel: [kh, kw],
+        }
+    }
+
+    /// Whether the fast path computes `conv` on `device` (then [`HostConv::of`] may be used).
+    pub fn applies(conv: &Conv2d, device: &Device) -> bool {
+        applies(conv, device)
+    }
+
+    /// Output channels.
+    pub fn out_channels(&self) -> usize {
+        self.cout
+    }
+
+    /// The convolution of `b` images `[b, cin, h, w]`, then a ReLU when `relu_after`.
+    pub fn run(&self, x: &[f32], b: usize, h: usize, w: usize, relu_after: bool) -> Vec<f32> {
+        let [kh, kw] = self.kernel;
+        conv_same_nchw(
+            x,
+            [b, self.cin, h, w],
+            &self.weight,
+            [self.cout, kh, kw],
+            self.bias.as_deref(),
+            relu_after,
+        )
+    }
+}
+
+/// A stride-1 convolution with zero padding that keeps the size, on NCHW data: `x` is
+/// `[b, cin, h, w]`, `weight` `[cout, cin, kh, kw]` (odd sizes), the result `[b, cout, h, w]`.
+pub fn conv_same_nchw(
+    x: &[f32],
+    [b, cin, h, w]: [usize; 4],
+    weight: &[f32],
+    [cout, kh, kw]: [usize; 3],
+    bias: Option<&[f32]>,
+    relu_after: bool,
+) -> Vec<f32> {
+    assert_eq!(x.len(), b * cin * h * w, "input size");
+    assert_eq!(weight.len(), cout * cin * kh * kw, "weight size");
+    let k = cin * kh * kw;
+    let plane = h * w;
+    let mut out = vec![0.0f32; b * cout * plane];
+    if plane == 0 || cout == 0 {
+        return out;
+    }
+    let rows_per_block = (BLOCK_PIXELS / w.max(1)).clamp(1, h);
+    let blocks_per_image = h.div_ceil(rows_per_block);
+    let out_ptr = SendPtr(out.as_mut_ptr());
+    (0..b * blocks_per_image).into_par_iter().for_each_init(
+        Vec::new,
+        |cols: &mut Vec<f32>, job| {
+            let (image, block) = (job / blocks_per_image, job % blocks_per_image);
+            let y0 = block * rows_per_block;
+            let y1 = (y0 + rows_per_block).min(h);
+            let n = (y1 - y0) * w;
+            cols.clear();
+            cols.resize(k * n, 0.0);
+            im2col_rows(
+                &x[image * cin * plane..][..cin * plane],
+                [cin, h, w],
+                [kh, kw],
+                y0..y1,
+                cols,
+            );
+            // this block's pixels of every output channel: row stride one plane
+            let dst = out_ptr.get().wrapping_add(image * cout * plane + y0 * w);
+            // SAFETY: the blocks of one image cover disjoint pixel ranges of each output
+            // plane, and images disjoint ranges of `out`, so no two jobs write the same element;
+            // every index stays within `out` (cout planes of `plane` floats from the image's
+            // start, `y0 * w + n <= plane`). `weight` is [cout, k] row-major and `cols`
+            // [k, n] row-major.
+            unsafe {
+                gemm::gemm(
+                    cout,
+                    n,
+                    k,
+                    dst,
+                    1,
+                    plane as isize,
+                    false,
+                    weight.as_ptr(),
+                    1,
+                    k as isize,
+                    cols.as_ptr(),
+                    1,
+                    n as isize,
+                    0.0,
+                    1.0,
+                    false,
+                    false,
+                    false,
+                    gemm::Parallelism::None,
+                );
+                for co in 0..cout {
+                    let row = std::slice::from_raw_parts_mut(dst.add(co * plane), n);
+                    let add = bias.map_or(0.0, |b| b[co]);
+                    if relu_after {
+                        row.iter_mut().for_each(|v| *v = (*v + add).max(0.0));
+                    } else if add != 0.0 {
+                        row.iter_mut().for_each(|v| *v += add);
+                    }
+                }
+            }
+        },
+    );
+    out
+}
+
+/// Fills `cols` (`[cin · kh · kw, pixels of rows]`, row-major, zeroed) with the input values
+/// each output pixel of rows `rows` sees through each kernel tap, zero beyond the image: row
+/// `(c, ky, kx)` holds `x[c, y + ky − kh/2, x + kx − kw/2]`.
+fn im2col_rows(
+    x: &[f32],
+    [cin, h, w]: [usize; 3],
+    [kh, kw]: [usize; 2],
+    rows: std::ops::Range<usize>,
+    cols: &mut [f32],
+) {
+    let n = rows.len() * w;
+    let (ry, rx) = ((kh / 2) as isize, (kw / 2) as isize);
+    for c in 0..cin {
+        let src = &x[c * h * w..][..h * w];
+        for ky in 0..kh {
+            for kx in 0..kw {
+                let dst = &mut cols[((c * kh + ky) * kw + kx) * n..][..n];
+                let dx = kx as isize - rx;
+                for (i, y) in rows.clone().enumerate() {
+                    let sy = y as isize + ky as isize - ry;
+                    if sy < 0 || sy >= h as isize {
+                        continue; // zero padding (the buffer starts zeroed)
+                    }
+                    let src_row = &src[sy as usize * w..][..w];
+                    let dst_row = &mut dst[i * w..][..w];
+                    // dst[x] = src[x + dx] where 0 <= x + dx < w
+                    let lo = (-dx).max(0) as usize;
+                    let hi = (w as isize - dx).min(w as isize).max(0) as usize;
+                    if lo < hi {
+                        let s0 = (lo as isize + dx) as usize;
+                        dst_row[lo..hi].copy_from_slice(&src_row[s0..s0 + (hi - lo)]);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::nn::conv::Conv2dConfig;
+
+    fn values(n: usize, seed: usize) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 500.0 - 1.0)
+            .collect()
+    }
+
+    /// The largest difference between burn's convolution and the fast path, relative to the
+    /// largest output magnitude.
+    fn worst_relative_difference(
+        cin: usize,
+        cout: usize,
+        k: usize,
+        h: usize,
+        w: usize,
+        relu_after: bool,
+    ) -> f32 {
+        let device = Device::flex();
+        let conv = Conv2dConfig::new([cin, cout], [k, k])
+            .with_padding(PaddingConfig2d::Same)
+            .init(&device);
+        let x = Tensor::<4>::from_data(
+            TensorData::new(values(2 * cin * h * w, 3), [2, cin, h, w]),
+            &device,
+        );
+        let want = conv.forward(x.clone());
+        let want = if relu_after { relu(want) } else { want };
+        let want = want.into_data().try_into_vec::<f32>().unwrap();
+        assert!(applies(&conv, &device));
+        let got = conv2d(&conv, x, relu_after)
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        assert_eq!(got.len(), want.len());
+        let scale = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(scale > 0.1, "a test output of real size");
+        got.iter()
+            .zip(&want)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
+            / scale
+    }
+
+    #[test]
+    fn the_fast_convolution_equals_burns_on_the_networks_shapes() {
+        // the backbone's, the RA predictor's, a head's and an input convolution's shapes, on
+        // sizes that are not multiples of the block (one row of 1 pixel, odd sizes)
+        for (cin, cout, k, h, w, r) in [
+            (32, 32, 3, 37, 45, true),
+            (32, 16, 3, 20, 71, false),
+            (16, 1, 3, 9, 13, false),
+            (96, 25, 3, 17, 19, false),
+            (13, 32, 3, 1, 1, true),
+            (5, 7, 5, 11, 6, false),
+            (8, 8, 1, 7, 9, true),
+        ] {
+            let d = worst_relative_difference(cin, cout, k, h, w, r);
+            assert!(
+                d < 1e-5,
+                "{cin}→{cout} {k}×{k} on {w}×{h}: relative difference {d}"
+            );
+        }
+    }
+
+    #[test]
+    fn training_devices_and_strided_convolutions_keep_burns_path() {
+        let device = Device::flex();
+        let conv = Conv2dConfig::new([4, 4], [3, 3])
+            .with_padding(PaddingConfig2d::Same)
+            .init(&device);
+        assert!(!applies(&conv, &device.clone().autodiff()));
+        let strided = Conv2dConfig::new([4, 4], [3, 3])
+            .with_stride([2, 2])
+            .with_padding(PaddingConfig2d::Same)
+            .init(&device);
+        assert!(!applies(&strided, &device));
+        let valid = Conv2dConfig::new([4, 4], [3, 3]).init(&device);
+        assert!(!applies(&valid, &device));
+    }
+}
