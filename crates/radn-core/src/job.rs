@@ -228,6 +228,7 @@ impl SequenceJob {
                 continue;
             }
             let idx = window_indices(pos, n, r);
+            let gathering = Instant::now();
             for &k in idx.iter().flatten() {
                 if let std::collections::btree_map::Entry::Vacant(e) = stats.entry(k) {
                     let s =
@@ -236,6 +237,7 @@ impl SequenceJob {
                     e.insert(s);
                 }
             }
+            let gathering = gathering.elapsed();
             let reach: Vec<Option<MotionReach>> =
                 idx.iter().map(|i| i.map(|k| stats[&k].reach)).collect();
             let hops = hop_reach(&reach);
@@ -276,12 +278,14 @@ impl SequenceJob {
             drop(claim);
             let total = started.elapsed();
             tracing::debug!(
-                "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s",
+                "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s \
+                 (and {:.1} s before, for the statistics pass of the frames new to this window)",
                 output.display(),
                 total.as_secs_f64(),
                 reading.as_secs_f64(),
                 denoising.as_secs_f64(),
-                (total - reading - denoising).as_secs_f64()
+                (total - reading - denoising).as_secs_f64(),
+                gathering.as_secs_f64()
             );
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);

@@ -2,12 +2,14 @@
 //! three stages: the model ([`model`]: configuration, layers, RA blocks, backbones, kernels,
 //! demodulation, model files), inference ([`infer`]: the tiled network denoiser, its inputs,
 //! temporal utilisation) and training ([`train`]: tile datasets, objective, losses, trainer,
-//! curves). [`bench`] measures the network's throughput.
+//! curves). [`bench`] measures the network's throughput, [`profile`] where a denoising run's
+//! time goes.
 
 pub mod bench;
 pub mod error;
 pub mod infer;
 pub mod model;
+pub mod profile;
 pub mod train;
 
 pub use error::{NnError, Result};

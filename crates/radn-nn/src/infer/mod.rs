@@ -24,6 +24,7 @@ use crate::infer::input::{network_input, FeatureScales, Region};
 use crate::infer::input_blend::InputBlend;
 use crate::model::demod::{filter, Demodulation};
 use crate::model::Denoiser;
+use crate::profile::{self, timed, Stage};
 
 /// A trained network as a sequence method.
 pub struct NetworkDenoiser {
@@ -86,16 +87,18 @@ impl NetworkDenoiser {
                 let h = win.centre().color.height();
                 let wide = rows.start.saturating_sub(p.radius)..(rows.end + p.radius).min(h);
                 let filtered = self.filtered_rows(win, scales, wide.clone());
-                let input = centre_values(win, wide.clone());
-                let var = window_noise_variance(win, wide.clone());
-                let weight = blend_weight(
-                    &input.select_channels(0, 3),
-                    &filtered.select_channels(0, 3),
-                    &var,
-                    p,
-                );
-                blend(&input, &filtered, &weight)
-                    .rows(rows.start - wide.start..rows.end - wide.start)
+                timed(Stage::InputBlend, || {
+                    let input = centre_values(win, wide.clone());
+                    let var = window_noise_variance(win, wide.clone());
+                    let weight = blend_weight(
+                        &input.select_channels(0, 3),
+                        &filtered.select_channels(0, 3),
+                        &var,
+                        p,
+                    );
+                    blend(&input, &filtered, &weight)
+                        .rows(rows.start - wide.start..rows.end - wide.start)
+                })
             }
         };
         let c = win.centre();
@@ -256,23 +259,27 @@ impl NetworkDenoiser {
         let t = win.frames.len();
         let b = group.len();
         let (rw, rh) = group[0].region.size();
-        let mut feats = Vec::new();
-        let mut vals = Vec::new();
-        for tile in group {
-            feats.extend(network_input(
-                win,
-                scales,
-                tile.region,
-                &self.denoiser.config.inputs,
-            ));
-            vals.extend(values(tile.region));
-        }
+        let (feats, vals) = timed(Stage::Inputs, || {
+            let mut feats = Vec::new();
+            let mut vals = Vec::new();
+            for tile in group {
+                feats.extend(network_input(
+                    win,
+                    scales,
+                    tile.region,
+                    &self.denoiser.config.inputs,
+                ));
+                vals.extend(values(tile.region));
+            }
+            (feats, vals)
+        });
         let x = Tensor::<5>::from_data(
             TensorData::new(feats, [b, t, self.denoiser.config.input_channels(), rh, rw]),
             &self.device,
         );
         let v = Tensor::<5>::from_data(TensorData::new(vals, [b, t, chans, rh, rw]), &self.device);
-        let res = f(&self.denoiser.predict(x.clone(), self.threshold), v, &x);
+        let prediction = self.denoiser.predict(x.clone(), self.threshold);
+        let res = timed(Stage::Kernels, || f(&prediction, v, &x));
         let oc = res.dims()[1];
         let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
         let out = out.get_or_insert_with(|| Plane::zeros(w, rows.len(), oc));
@@ -321,8 +328,16 @@ impl WindowDenoiser for NetworkDenoiser {
     }
 
     fn denoise(&self, window: &[Option<&Frame>]) -> radn_core::Result<Denoised> {
-        let win = align_window(window, &self.align);
-        Ok(self.denoise_aligned(&win))
+        let win = timed(Stage::Align, || align_window(window, &self.align));
+        let out = self.denoise_aligned(&win);
+        log_stages(
+            window
+                .get(window.len() / 2)
+                .copied()
+                .flatten()
+                .map(|f| f.path.as_path()),
+        );
+        Ok(out)
     }
 
     fn banded(&self) -> Option<&dyn BandDenoiser> {
@@ -353,7 +368,7 @@ impl BandDenoiser for NetworkDenoiser {
         out: Range<usize>,
         centre: &FrameStats,
     ) -> radn_core::Result<Denoised> {
-        let win = align_bands(window, &self.align);
+        let win = timed(Stage::Align, || align_bands(window, &self.align));
         let scales = FeatureScales {
             depth: centre.mean_depth(),
             exposure: centre.exposure(),
@@ -369,7 +384,25 @@ impl BandDenoiser for NetworkDenoiser {
                 );
             }
         }
-        Ok(self.denoise_rows(&win, scales, out))
+        let band = out.clone();
+        let result = self.denoise_rows(&win, scales, out);
+        tracing::debug!(
+            frame = %centre.names.path.display(),
+            rows = ?band,
+            "network stages: {}",
+            profile::take()
+        );
+        Ok(result)
+    }
+}
+
+/// Logs where the time of the frame just denoised went (`radn denoise -v`), and clears the
+/// tally for the next frame.
+fn log_stages(frame: Option<&std::path::Path>) {
+    let times = profile::take();
+    match frame {
+        Some(p) => tracing::debug!(frame = %p.display(), "network stages: {times}"),
+        None => tracing::debug!("network stages: {times}"),
     }
 }
 

@@ -11,6 +11,7 @@ use crate::model::config::Backbone;
 use crate::model::cpu::conv::conv2d;
 use crate::model::layers::{conv3, conv_flops, widen_conv_input, DoubleConv, ResBlock};
 use crate::model::ra_block::RobustAverage;
+use crate::profile::{timed, Stage};
 
 /// The paper's ResNet (Fig. 1), with RA blocks after chosen residual blocks and skip
 /// connections from chosen RA blocks to the head.
@@ -299,8 +300,8 @@ impl FrameNet {
     /// Per-frame features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         match self {
-            FrameNet::ResNet(n) => n.forward(x),
-            FrameNet::UNet(n) => n.forward(x),
+            FrameNet::ResNet(n) => timed(Stage::Backbone, || n.forward(x)),
+            FrameNet::UNet(n) => timed(Stage::Backbone, || n.forward(x)),
         }
     }
 

@@ -31,6 +31,24 @@ pub struct Kernels {
 /// normalises the raw weights first; with [`Activation::NormEta`] their positive part divided
 /// by its sum (a pixel whose raw weights are all ≤ 0 gets the identity).
 pub fn eta(raw: Tensor<4>, t: f32, activation: Activation, identity_tap: usize) -> Tensor<4> {
+    let device = raw.device();
+    if is_cpu_inference(&device) {
+        let dims = raw.dims();
+        let data = raw.into_data();
+        let out = crate::model::cpu::eta::eta(
+            data.as_slice::<f32>().expect("f32 raw weights"),
+            dims,
+            t,
+            activation,
+            identity_tap,
+        );
+        return Tensor::from_data(TensorData::new(out, dims), &device);
+    }
+    eta_with_burn(raw, t, activation, identity_tap)
+}
+
+/// [`eta`] as burn operations (training, other backends).
+fn eta_with_burn(raw: Tensor<4>, t: f32, activation: Activation, identity_tap: usize) -> Tensor<4> {
     let w = match activation {
         Activation::Eta => raw,
         Activation::SoftmaxEta => softmax(raw, 1),
@@ -164,6 +182,40 @@ mod tests {
 
     fn raw(v: Vec<f32>, k: usize) -> Tensor<4> {
         Tensor::from_data(TensorData::new(v, [1, k, 1, 1]), &dev())
+    }
+
+    #[test]
+    fn the_cpu_activation_equals_burns_for_every_activation_and_threshold() {
+        let device = Device::flex();
+        let (b, k, h, w) = (2, 25, 7, 300); // a block boundary inside each image
+        let raw: Vec<f32> = (0..b * k * h * w)
+            .map(|i| ((i * 7919) % 1009) as f32 / 500.0 - 1.2)
+            .collect();
+        for activation in [Activation::Eta, Activation::SoftmaxEta, Activation::NormEta] {
+            for t in [0.0, 0.02, 0.3] {
+                let x = Tensor::<4>::from_data(TensorData::new(raw.clone(), [b, k, h, w]), &device);
+                let got = eta(x.clone(), t, activation, 12)
+                    .into_data()
+                    .try_into_vec::<f32>()
+                    .unwrap();
+                let want = eta_with_burn(x, t, activation, 12)
+                    .into_data()
+                    .try_into_vec::<f32>()
+                    .unwrap();
+                let worst = got
+                    .iter()
+                    .zip(&want)
+                    .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+                assert!(
+                    worst < 1e-5,
+                    "{activation:?} t={t}: worst difference {worst}"
+                );
+                // some pixels fall back to the identity at the largest threshold
+                if t == 0.3 && activation != Activation::Eta {
+                    assert!(want.iter().any(|&v| v == 1.0));
+                }
+            }
+        }
     }
 
     #[test]

@@ -27,6 +27,7 @@ use crate::model::cpu::conv::conv2d;
 use crate::model::kernel::{eta, Kernels};
 use crate::model::layers::{conv3, conv_flops};
 use crate::model::multiscale::{downsample, pad_to, padded_size, MultiScaleKernels};
+use crate::profile::{timed, Stage};
 
 /// Initial bias of the multi-scale blend heads: `α = sigmoid(−2) ≈ 0.12`, so a new network
 /// starts close to its full-resolution kernels and learns how much of the coarse scales to use.
@@ -377,6 +378,10 @@ impl Denoiser {
     /// Predicts kernels for windows `[B, T, C, H, W]` (`C` = [`NetConfig::input_channels`],
     /// made by [`crate::infer::input::network_features`]) with threshold `t`.
     pub fn predict(&self, input: Tensor<5>, t: f32) -> Prediction {
+        timed(Stage::Heads, || self.predict_untimed(input, t))
+    }
+
+    fn predict_untimed(&self, input: Tensor<5>, t: f32) -> Prediction {
         let [b, frames, c, h, w] = input.dims();
         assert_eq!(
             frames, self.config.frames,

@@ -11,6 +11,7 @@ use burn::tensor::{Device, Tensor, TensorData};
 use crate::model::cpu::conv::{conv2d, HostConv};
 use crate::model::cpu::ra::{robust_average, RobustAverageConvs};
 use crate::model::layers::{conv3, conv_flops};
+use crate::profile::{timed, Stage};
 
 /// Bias of the weight predictor at initialisation: sigmoid(−2) ≈ 0.12, so a new block starts
 /// close to the identity (a ResNet-friendly start) but passes gradient to its averaging path.
@@ -87,6 +88,10 @@ impl RobustAverage {
 
     /// `h`: `[batch · frames, C, H, W]`, frames consecutive within each batch item.
     pub fn forward(&self, h: Tensor<4>) -> Tensor<4> {
+        timed(Stage::RobustAverage, || self.forward_untimed(h))
+    }
+
+    fn forward_untimed(&self, h: Tensor<4>) -> Tensor<4> {
         let [bt, c, hh, ww] = h.dims();
         let t = self.frames;
         let b = bt / t;
