@@ -164,3 +164,121 @@ pub fn time_conv_stack(
         forward_flops: flops,
     }
 }
+
+/// Inference throughput of one convolution shape, through radn's CPU path and through burn's.
+#[derive(Clone, Debug)]
+pub struct ConvTiming {
+    /// Input channels.
+    pub cin: usize,
+    /// Output channels.
+    pub cout: usize,
+    /// Median milliseconds per call of radn's CPU convolution ([`crate::model::cpu::conv`]).
+    pub radn_ms: f64,
+    /// Median milliseconds per call of burn's own convolution on the same device.
+    pub burn_ms: f64,
+    /// FLOPs of one call (multiply-adds count 2).
+    pub flops: f64,
+}
+
+impl ConvTiming {
+    /// GFLOP/s of radn's path.
+    pub fn radn_gflops(&self) -> f64 {
+        self.flops / (self.radn_ms * 1e-3) / 1e9
+    }
+
+    /// GFLOP/s of burn's path.
+    pub fn burn_gflops(&self) -> f64 {
+        self.flops / (self.burn_ms * 1e-3) / 1e9
+    }
+}
+
+/// Times 3×3 convolutions of the given `(cin, cout)` shapes on `batch` maps of `tile × tile`
+/// (for a denoising tile, `batch` = the window's 5 frames), inference only, on `device` (the
+/// `flex` CPU device for radn's path to apply).
+pub fn time_convs(
+    shapes: &[(usize, usize)],
+    batch: usize,
+    tile: usize,
+    repeats: usize,
+    device: &Device,
+) -> Vec<ConvTiming> {
+    let time = |f: &dyn Fn()| {
+        let mut times = Vec::new();
+        for i in 0..repeats + 1 {
+            let start = Instant::now();
+            f();
+            if i > 0 {
+                times.push(start.elapsed().as_secs_f64() * 1e3);
+            }
+        }
+        median(times)
+    };
+    shapes
+        .iter()
+        .map(|&(cin, cout)| {
+            let conv = conv3(cin, cout, device);
+            let x = Tensor::<4>::random(
+                [batch, cin, tile, tile],
+                Distribution::Uniform(0.0, 1.0),
+                device,
+            );
+            let radn_ms = time(&|| {
+                let _ = crate::model::cpu::conv::conv2d(&conv, x.clone(), false).into_data();
+            });
+            let burn_ms = time(&|| {
+                let _ = conv.forward(x.clone()).into_data();
+            });
+            ConvTiming {
+                cin,
+                cout,
+                radn_ms,
+                burn_ms,
+                flops: batch as f64 * conv_flops(&conv, tile * tile),
+            }
+        })
+        .collect()
+}
+
+/// GFLOP/s of one large square `n × n` single-precision GEMM (the `gemm` crate, all threads):
+/// the practical ceiling of this machine's convolutions, to read [`time_convs`] against.
+pub fn gemm_ceiling(n: usize, repeats: usize) -> f64 {
+    let a = vec![1.0f32; n * n];
+    let b = vec![0.5f32; n * n];
+    let mut c = vec![0.0f32; n * n];
+    let mut times = Vec::new();
+    for i in 0..repeats + 1 {
+        let start = Instant::now();
+        // SAFETY: three row-major n × n buffers, each n · n floats long.
+        unsafe {
+            gemm::gemm(
+                n,
+                n,
+                n,
+                c.as_mut_ptr(),
+                1,
+                n as isize,
+                false,
+                a.as_ptr(),
+                1,
+                n as isize,
+                b.as_ptr(),
+                1,
+                n as isize,
+                0.0,
+                1.0,
+                false,
+                false,
+                false,
+                gemm::Parallelism::Rayon(0),
+            );
+        }
+        if i > 0 {
+            times.push(start.elapsed().as_secs_f64());
+        }
+    }
+    assert!(
+        (c[0] - 0.5 * n as f32).abs() < 1e-3 * n as f32,
+        "the GEMM computed"
+    );
+    2.0 * (n * n * n) as f64 / median(times) / 1e9
+}

@@ -13,7 +13,7 @@ use crate::input::ChannelArgs;
 #[derive(clap::Args)]
 pub struct Args {
     /// Input sequence (pattern or folder) with at least 5 frames.
-    #[arg(short, long, required_unless_present = "network")]
+    #[arg(short, long, required_unless_present_any = ["network", "convs"])]
     pub input: Option<String>,
     /// Instead: time training steps of a network — a preset (small, paper, unet, tkpcn,
     /// spatial) or a TOML file — on one tile, next to a bare 3×3 conv stack of the same width
@@ -34,6 +34,11 @@ pub struct Args {
     /// Repetitions (the median is reported).
     #[arg(long, default_value_t = 5)]
     pub repeat: usize,
+    /// Instead: time the 3×3 convolution shapes of the default network (input, residual
+    /// blocks, RA predictor, kernel head) at inference on `--tile` maps of 5 frames, through
+    /// radn's CPU path and through burn's, in GFLOP/s.
+    #[arg(long, conflicts_with = "network")]
+    pub convs: bool,
     /// Also time the classic denoiser's stages.
     #[arg(long)]
     pub classic: bool,
@@ -43,6 +48,9 @@ pub struct Args {
 
 /// Times decoding and alignment (or a network); prints throughput.
 pub fn run(a: Args) -> Result<()> {
+    if a.convs {
+        return convs(a.tile, a.repeat);
+    }
     if let Some(preset) = &a.network {
         if a.inference {
             return inference(preset, a.tile, a.batch, a.repeat);
@@ -104,6 +112,38 @@ fn net_config(preset: &str) -> Result<radn_nn::NetConfig> {
     } else {
         radn_nn::NetConfig::preset(preset)?
     })
+}
+
+/// Times the default network's convolution shapes, radn's CPU path against burn's.
+fn convs(tile: usize, repeats: usize) -> Result<()> {
+    let device = radn_nn::burn::tensor::Device::flex();
+    let cin = crate::model::load(None, &device)?.config.input_channels();
+    // input layer, residual blocks, RA predictor (h_i and average halves, weight), kernel head
+    let shapes = [(cin, 32), (32, 32), (32, 16), (16, 1), (96, 25)];
+    println!(
+        "3x3 convolutions on 5 x {tile}x{tile} maps, inference, {} threads (median of {repeats}):",
+        rayon::current_num_threads()
+    );
+    println!("| cin → cout | radn ms | radn GFLOP/s | burn ms | burn GFLOP/s | speed-up |");
+    println!("| --- | ---: | ---: | ---: | ---: | ---: |");
+    let timings = radn_nn::bench::time_convs(&shapes, 5, tile, repeats.max(1), &device);
+    for t in timings {
+        println!(
+            "| {} → {} | {:.0} | {:.1} | {:.0} | {:.1} | {:.2} |",
+            t.cin,
+            t.cout,
+            t.radn_ms,
+            t.radn_gflops(),
+            t.burn_ms,
+            t.burn_gflops(),
+            t.burn_ms / t.radn_ms
+        );
+    }
+    println!(
+        "ceiling: one 2048x2048 GEMM (gemm crate, same threads) reaches {:.1} GFLOP/s",
+        radn_nn::bench::gemm_ceiling(2048, repeats.max(1))
+    );
+    Ok(())
 }
 
 /// Times inference calls of a network on batches of tiles.
