@@ -18,7 +18,10 @@
 
 use burn::tensor::module::avg_pool2d;
 use burn::tensor::ops::{AvgPoolOptions, PadMode};
-use burn::tensor::Tensor;
+use burn::tensor::{Tensor, TensorData};
+
+use crate::model::cpu::is_cpu_inference;
+use crate::model::cpu::pool::box_downsample;
 
 use crate::model::kernel::Kernels;
 
@@ -36,6 +39,13 @@ pub struct MultiScaleKernels {
 
 /// The 2×2 box average of `[N, C, H, W]` (H and W even).
 pub fn downsample(x: Tensor<4>) -> Tensor<4> {
+    let device = x.device();
+    let [n, c, h, w] = x.dims();
+    if is_cpu_inference(&device) && h % 2 == 0 && w % 2 == 0 {
+        let data = x.into_data();
+        let out = box_downsample(data.as_slice::<f32>().expect("f32 maps"), [n * c, h, w]);
+        return Tensor::from_data(TensorData::new(out, [n, c, h / 2, w / 2]), &device);
+    }
     avg_pool2d(x, AvgPoolOptions::new([2, 2]))
 }
 
@@ -124,6 +134,23 @@ mod tests {
 
     fn vals<const D: usize>(t: Tensor<D>) -> Vec<f32> {
         t.to_data().try_to_vec::<f32>().unwrap()
+    }
+
+    #[test]
+    fn the_cpu_box_average_equals_burns_pooling() {
+        let (n, c, h, w) = (3, 5, 10, 14);
+        let v: Vec<f32> = (0..n * c * h * w)
+            .map(|i| ((i * 7919) % 977) as f32 / 97.0 - 4.0)
+            .collect();
+        let x = t4(v, [n, c, h, w]);
+        let cpu = vals(downsample(x.clone()));
+        let burn = vals(avg_pool2d(x, AvgPoolOptions::new([2, 2])));
+        assert_eq!(cpu.len(), n * c * (h / 2) * (w / 2));
+        let worst = cpu
+            .iter()
+            .zip(&burn)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(worst < 1e-5, "worst difference {worst}");
     }
 
     #[test]

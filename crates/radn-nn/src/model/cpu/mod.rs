@@ -1,5 +1,6 @@
 //! Inference fast paths for the CPU: the network's convolutions ([`conv`]), the Robust Average
-//! blocks ([`ra`]), the kernel activation ([`eta`]) and the kernel application ([`apply`]) computed directly on `f32` slices, where burn's `flex` backend
+//! blocks ([`ra`]), the kernel activation ([`eta`]), the multi-scale
+//! pooling ([`pool`]) and the kernel application ([`apply`]) computed directly on `f32` slices, where burn's `flex` backend
 //! spends most of a denoising run outside its GEMM kernels (serial layout conversions,
 //! allocations of unfolded patches). They compute the same functions as the burn operations
 //! they replace (tested against them) and run only on the `flex` device without autodiff:
@@ -8,6 +9,7 @@
 pub mod apply;
 pub mod conv;
 pub mod eta;
+pub mod pool;
 pub mod ra;
 
 use burn::tensor::Device;
