@@ -169,7 +169,9 @@ impl SequenceJob {
                 continue;
             }
             // decode what this window needs, once
+            let started = Instant::now();
             windows.load(pos, reach)?;
+            let decoding = started.elapsed();
             if prepares {
                 prepared.retain(|&k, _| k + r >= pos);
                 for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
@@ -182,6 +184,7 @@ impl SequenceJob {
                     }
                 }
             }
+            let denoising = Instant::now();
             let out = if prepares {
                 let window: Vec<Option<&Frame>> = window_indices(pos, n, r)
                     .iter()
@@ -191,9 +194,20 @@ impl SequenceJob {
             } else {
                 method.denoise(&windows.window(pos))?
             };
+            let denoising = denoising.elapsed();
+            let writing = Instant::now();
             let file = windows.take_file(pos).expect("each frame is written once");
             write_result(file, windows.frame(pos), &out, output, self.output_kind)?;
             drop(claim);
+            tracing::debug!(
+                "{}: {:.1} s, of which decoding the frames new to this window {:.1} s, \
+                 denoising {:.1} s, writing {:.1} s",
+                output.display(),
+                started.elapsed().as_secs_f64(),
+                decoding.as_secs_f64(),
+                denoising.as_secs_f64(),
+                writing.elapsed().as_secs_f64()
+            );
             report.written += 1;
             progress((done + 1) as f64, total);
         }
