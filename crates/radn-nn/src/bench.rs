@@ -250,25 +250,12 @@ pub fn gemm_ceiling(n: usize, repeats: usize) -> f64 {
         let start = Instant::now();
         // SAFETY: three row-major n × n buffers, each n · n floats long.
         unsafe {
-            gemm::gemm(
-                n,
-                n,
-                n,
+            crate::model::cpu::conv::matmul_into(
+                [n, n, n],
                 c.as_mut_ptr(),
-                1,
-                n as isize,
-                false,
-                a.as_ptr(),
-                1,
-                n as isize,
-                b.as_ptr(),
-                1,
-                n as isize,
-                0.0,
-                1.0,
-                false,
-                false,
-                false,
+                n,
+                &a,
+                &b,
                 gemm::Parallelism::Rayon(0),
             );
         }

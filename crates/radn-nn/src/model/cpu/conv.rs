@@ -173,25 +173,12 @@ pub fn conv_same_nchw(
             // start, `y0 * w + n <= plane`). `weight` is [cout, k] row-major and `cols`
             // [k, n] row-major.
             unsafe {
-                gemm::gemm(
-                    cout,
-                    n,
-                    k,
+                matmul_into(
+                    [cout, n, k],
                     dst,
-                    1,
-                    plane as isize,
-                    false,
-                    weight.as_ptr(),
-                    1,
-                    k as isize,
-                    cols.as_ptr(),
-                    1,
-                    n as isize,
-                    0.0,
-                    1.0,
-                    false,
-                    false,
-                    false,
+                    plane,
+                    &weight[..cout * k],
+                    &cols[..k * n],
                     gemm::Parallelism::None,
                 );
                 for co in 0..cout {
@@ -207,6 +194,47 @@ pub fn conv_same_nchw(
         },
     );
     out
+}
+
+/// `dst = lhs · rhs` for row-major `lhs` (`[m, k]`) and `rhs` (`[k, n]`), `dst` being `m` rows
+/// of `n` floats, `dst_stride` floats apart (the one GEMM call of the CPU paths).
+///
+/// # Safety
+/// `dst` must be valid for writes of `m` rows of `n` floats spaced `dst_stride` apart, and no
+/// other thread may access those elements during the call.
+pub(crate) unsafe fn matmul_into(
+    [m, n, k]: [usize; 3],
+    dst: *mut f32,
+    dst_stride: usize,
+    lhs: &[f32],
+    rhs: &[f32],
+    parallelism: gemm::Parallelism,
+) {
+    assert!(lhs.len() >= m * k && rhs.len() >= k * n, "operand sizes");
+    // SAFETY: the operands are checked above; `dst` is the caller's promise.
+    unsafe {
+        gemm::gemm(
+            m,
+            n,
+            k,
+            dst,
+            1,
+            dst_stride as isize,
+            false,
+            lhs.as_ptr(),
+            1,
+            k as isize,
+            rhs.as_ptr(),
+            1,
+            n as isize,
+            0.0,
+            1.0,
+            false,
+            false,
+            false,
+            parallelism,
+        );
+    }
 }
 
 /// Fills `cols` (`[cin · kh · kw, pixels of rows]`, row-major, zeroed) with the input values
