@@ -4,6 +4,7 @@
     python -m radn_datagen dataset --split train --scenes 40 --frames 1-16 --res 256x256 --out data/train
     python -m radn_datagen dataset --split detail-train --scenes 90 --spp 32,64,128,256 --teacher-spp 1x ...
     python -m radn_datagen oidn IN_DIR OUT_DIR      # OIDN 2.5 on every frame of a folder
+    python -m radn_datagen oidn IN_DIR OUT_DIR --mode noisy-aux --timings t.json
 """
 import argparse
 import os
@@ -13,6 +14,7 @@ import time
 from . import LEVELS
 from . import render, scene as scenes
 from .levels import extra_level, level_spp, per_scene_choice
+from .oidn import MODES as OIDN_MODES
 
 # Disjoint seed ranges per split, so no scene is ever in two splits. The detail splits hold
 # scenes with fine detail (`detail.py`); detail-test is held aside: never used for training or
@@ -82,7 +84,8 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
 
         denoise_folder(os.path.join(out, TEACHER), os.path.join(out, TEACHER_OIDN), log=log)
         done[TEACHER_OIDN] = {"spp": teacher, "denoiser": "Intel Open Image Denoise 2.5 (pyoidn), HDR, "
-                              "albedo + normal prefiltered, quality high", "source": TEACHER}
+                              "albedo + normal prefiltered (their own RT filters, then cleanAux), quality high",
+                              "source": TEACHER}
     info = {
         "seed": seed,
         "frames": list(frames),
@@ -131,6 +134,12 @@ def main(argv=None):
     o = sub.add_parser("oidn", help="denoise every frame of a folder with Intel Open Image Denoise 2.5")
     o.add_argument("src")
     o.add_argument("dst")
+    o.add_argument("--mode", choices=OIDN_MODES, default=OIDN_MODES[0],
+                   help="prefiltered: albedo and normal denoised first, then the beauty with cleanAux "
+                        "(default); noisy-aux: the beauty filter alone on the noisy auxiliaries")
+    o.add_argument("--threads", type=int, default=0, help="OIDN worker threads (default: all cores)")
+    o.add_argument("--timings", default=None,
+                   help="write the seconds spent reading, denoising and writing (JSON) to this file")
     t = sub.add_parser("trim", help="copy a scene keeping only the passes radn reads (for the shipped sample)")
     t.add_argument("src")
     t.add_argument("dst")
@@ -148,10 +157,17 @@ def main(argv=None):
     if a.cmd == "oidn":
         from .oidn import OidnInputError, denoise_folder
 
+        timings = {}
         try:
-            n = denoise_folder(a.src, a.dst, skip_existing=False, log=lambda _: None)
+            n = denoise_folder(a.src, a.dst, skip_existing=False, log=lambda _: None, mode=a.mode,
+                               threads=a.threads, timings=timings)
         except OidnInputError as e:
             raise SystemExit(str(e))
+        if a.timings:
+            import json
+
+            with open(a.timings, "w") as f:
+                json.dump({"frames": n, "mode": a.mode, **timings}, f)
         print(f"wrote {n} frames to {a.dst}")
         return 0
     frames = parse_range(a.frames)
