@@ -155,3 +155,32 @@ def test_oidn_names_the_file_and_the_missing_channel(tmp_path):
     assert r.returncode != 0
     assert "frame_0001.exr" in r.stderr and "Denoising Albedo" in r.stderr, r.stderr
     assert not (tmp_path / "out" / "frame_0001.exr").exists()
+
+
+def test_oidn_prefiltering_denoises_the_auxiliaries_and_beats_the_noisy_aux_mode(tmp_path):
+    """OIDN's prefiltered mode (albedo and normal through their own filters, then cleanAux) is
+    not the single noisy-aux pass: on the shipped sample's 4-spp frame it is measurably closer to
+    the 1024-spp reference (2026-12-02: MSE 0.92x of noisy-aux's on the x/(1+x)-tonemapped frame;
+    +0.33 dB PSNR over frames 3-7 in `radn eval`)."""
+    pytest.importorskip("pyoidn")
+    sys.path.insert(0, DATAGEN)
+    from radn_datagen.oidn import OidnDenoiser, denoise_file
+
+    sample = os.path.join(REPO, "samples", "cycles-sample")
+    src = os.path.join(sample, "low", "frame_0004.exr")
+    ref = rgb(channels(os.path.join(sample, "ref", "frame_0004.exr")))
+    err = {}
+    for mode in ("prefiltered", "noisy-aux"):
+        d = OidnDenoiser(mode=mode, threads=1)
+        timings = {}
+        try:
+            denoise_file(src, str(tmp_path / mode / "frame_0004.exr"), d, timings)
+        finally:
+            d.close()
+        assert set(timings) == {"read", "denoise", "write"} and min(timings.values()) > 0
+        out = rgb(channels(tmp_path / mode / "frame_0004.exr"))
+        tm = lambda x: np.maximum(x, 0) / (1 + np.maximum(x, 0))
+        err[mode] = float(np.mean((tm(out) - tm(ref)) ** 2))
+    assert err["prefiltered"] < 0.95 * err["noisy-aux"], err
+    with pytest.raises(ValueError, match="unknown OIDN mode"):
+        OidnDenoiser(mode="clean")
