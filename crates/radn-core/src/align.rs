@@ -48,6 +48,8 @@ pub struct AlignedFrame {
     pub depth: Option<Plane>,
     /// AOVs in the order the frames carry them.
     pub aovs: Vec<Plane>,
+    /// The frame's guide ([`Frame::guide`]), warped like the colour.
+    pub guide: Option<Plane>,
     /// Confidence in [0, 1]: 1 for the centre frame; 0 off-screen, on disocclusion and for
     /// frames beyond the ends of the sequence.
     pub confidence: Plane,
@@ -110,6 +112,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
         normal: centre.normal.clone(),
         depth: centre.depth.clone(),
         aovs: centre.aovs.iter().map(|a| a.plane.clone()).collect(),
+        guide: centre.guide.clone(),
         confidence: Plane::filled(w, h, 1, 1.0),
         flow: Plane::zeros(w, h, 2),
     });
@@ -189,6 +192,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 normal: tf.normal.as_ref().map(warp),
                 depth: warped_guides.depth,
                 aovs: tf.aovs.iter().map(|a| warp(&a.plane)).collect(),
+                guide: tf.guide.as_ref().map(warp),
                 confidence: conf,
                 flow: flow.clone(),
             };
@@ -232,6 +236,7 @@ fn mix_frame(f: &mut AlignedFrame, c: &AlignedFrame) {
         (&mut f.albedo, &c.albedo),
         (&mut f.normal, &c.normal),
         (&mut f.depth, &c.depth),
+        (&mut f.guide, &c.guide),
     ] {
         if let (Some(a), Some(b)) = (a.as_mut(), b.as_ref()) {
             mix_with_centre(a, b, &f.confidence);

@@ -148,6 +148,9 @@ fn sources(headers: &[Header], names: &Frame, path: &Path) -> Result<Vec<Vec<Opt
     for (c, n) in names.color_channels.iter().enumerate() {
         wanted.push((n.clone(), (0, c)));
     }
+    for (c, n) in names.denoised_channels.iter().flatten().enumerate() {
+        wanted.push((n.clone(), (0, c)));
+    }
     if let Some(a) = &names.alpha_channel {
         wanted.push((a.clone(), (1, 0)));
     }
@@ -392,6 +395,9 @@ pub fn write_result(
         file.set_channel(name, data, kind.unwrap_or(SampleKind::F32));
     };
     for (c, name) in frame.color_channels.iter().enumerate() {
+        put(name, out.color.channel(c));
+    }
+    for (c, name) in frame.denoised_channels.iter().flatten().enumerate() {
         put(name, out.color.channel(c));
     }
     if let (Some(a), Some(name)) = (&out.alpha, &frame.alpha_channel) {

@@ -43,6 +43,11 @@ pub enum Error {
         layers: String,
     },
 
+    /// A frame's guide could not be read or computed (`path` empty where no file is at fault,
+    /// e.g. Intel Open Image Denoise is not installed).
+    #[error("{}", guide_message(.path, .detail))]
+    Guide { path: PathBuf, detail: String },
+
     /// A file of a sequence differs in size from the others.
     #[error("'{path}' is {found_w}x{found_h} but the sequence is {expected_w}x{expected_h}")]
     SizeMismatch {
@@ -121,4 +126,12 @@ pub enum Error {
     /// The output pattern names the input sequence.
     #[error("refusing to write: the output pattern '{pattern}' is the input pattern")]
     OutputIsInput { pattern: String },
+}
+
+fn guide_message(path: &std::path::Path, detail: &str) -> String {
+    if path.as_os_str().is_empty() {
+        detail.to_string()
+    } else {
+        format!("'{}': guide: {detail}", path.display())
+    }
 }

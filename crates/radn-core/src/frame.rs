@@ -87,8 +87,16 @@ pub struct Frame {
     pub motion_next: Option<Plane>,
     /// Extra buffers requested by the caller.
     pub aovs: Vec<Aov>,
+    /// A per-frame spatial estimate of the beauty (RGB) that steers a guided network: the
+    /// renderer's denoised layer or Intel Open Image Denoise's result ([`crate::guide`]).
+    /// Never read by [`FrameReader`] itself; a sequence job attaches it.
+    pub guide: Option<Plane>,
     /// The full channel names the beauty was read from (R, G, B), for writing results back.
     pub color_channels: Vec<String>,
+    /// The full channel names of the renderer's own denoised beauty, where the file holds one
+    /// beside the noisy beauty that was read ([`ChannelMapping::denoised`]): results are
+    /// written into these as well, so that every reader of the output sees radn's result.
+    pub denoised_channels: Option<Vec<String>>,
     /// The full channel name of alpha, if read.
     pub alpha_channel: Option<String>,
     /// How many NaN/Inf samples were repaired.
@@ -141,7 +149,9 @@ impl Frame {
                     plane: a.plane.rows(rows.clone()),
                 })
                 .collect(),
+            guide: cut(&self.guide),
             color_channels: self.color_channels.clone(),
+            denoised_channels: self.denoised_channels.clone(),
             alpha_channel: self.alpha_channel.clone(),
             repaired: self.repaired,
         }
@@ -159,7 +169,9 @@ impl Frame {
             motion_prev: None,
             motion_next: None,
             aovs: Vec::new(),
+            guide: None,
             color_channels: vec!["R".into(), "G".into(), "B".into()],
+            denoised_channels: None,
             alpha_channel: None,
             repaired: 0,
         }
@@ -209,6 +221,21 @@ pub struct FrameReader {
     pub nonfinite: NonFinitePolicy,
     /// Extra buffers to read: layer names (with the view-layer prefix implied) or full channel names.
     pub aovs: Vec<String>,
+    /// The guide layer to read into [`Frame::guide`], if any.
+    pub guide: GuideLayer,
+}
+
+/// Which layer of a file [`FrameReader`] reads as the frame's guide.
+#[derive(Clone, Debug, Default, PartialEq, Eq)]
+pub enum GuideLayer {
+    /// None.
+    #[default]
+    None,
+    /// The renderer's denoised beauty ([`ChannelMapping::denoised`]), which must be a layer
+    /// other than the noisy beauty read.
+    Denoised,
+    /// A layer by name (view-layer prefix implied) or three full channel names' layer.
+    Layer(String),
 }
 
 impl FrameReader {
@@ -220,6 +247,7 @@ impl FrameReader {
             require,
             nonfinite: NonFinitePolicy::Repair,
             aovs: Vec::new(),
+            guide: GuideLayer::None,
         }
     }
 
@@ -368,6 +396,15 @@ impl FrameReader {
                 plane,
             });
         }
+        let denoised_channels = self.denoised_channels(file, &names, &color_channels, &prefix)?;
+        let guide = self.guide_plane(
+            file,
+            &names,
+            &color_channels,
+            denoised_channels.as_ref(),
+            &prefix,
+            &mut repaired,
+        )?;
         let (alpha, alpha_channel) = match alpha {
             Some((p, c)) => (Some(p), Some(c[0].clone())),
             None => (None, None),
@@ -382,10 +419,100 @@ impl FrameReader {
             motion_prev,
             motion_next,
             aovs,
+            guide,
+            denoised_channels,
             color_channels,
             alpha_channel,
             repaired,
         })
+    }
+
+    /// The channels of the renderer's denoised beauty in `file`, if the mapping names one and
+    /// it is not the layer the (noisy) beauty `color` was read from.
+    fn denoised_channels(
+        &self,
+        file: &ExrFile,
+        names: &[String],
+        color: &[String],
+        prefix: &str,
+    ) -> Result<Option<Vec<String>>> {
+        let Some(spec) = &self.mapping.denoised else {
+            return Ok(None);
+        };
+        let choice = self.layer.clone().or(Some(prefix.to_string()));
+        let r = self.find_with(
+            file,
+            names,
+            "denoised beauty",
+            &spec.layer,
+            &spec.channels,
+            choice.as_deref(),
+        )?;
+        Ok(r.map(|r| r.channels).filter(|c| c.as_slice() != color))
+    }
+
+    /// The guide plane `self.guide` asks for, from a decoded file whose (noisy) beauty is
+    /// `color` and whose renderer-denoised beauty is `denoised`.
+    fn guide_plane(
+        &self,
+        file: &ExrFile,
+        names: &[String],
+        color: &[String],
+        denoised: Option<&Vec<String>>,
+        prefix: &str,
+        repaired: &mut usize,
+    ) -> Result<Option<Plane>> {
+        let channels = match &self.guide {
+            GuideLayer::None => return Ok(None),
+            GuideLayer::Denoised => match denoised {
+                Some(c) => c.clone(),
+                None => {
+                    return Err(Error::MissingChannel {
+                        path: file.path().to_path_buf(),
+                        what: "denoised beauty (a guide layer beside the noisy beauty)".into(),
+                        preset: self.mapping.name.clone(),
+                        looked_for: self.mapping.denoised.as_ref().map_or_else(
+                            || "(the mapping defines none)".into(),
+                            |s| {
+                                format!(
+                                    "{} other than the beauty's {}",
+                                    describe(&s.layer, &s.channels),
+                                    color.join(",")
+                                )
+                            },
+                        ),
+                        present: names.join(", "),
+                    })
+                }
+            },
+            GuideLayer::Layer(layer) => {
+                let mut c = aov_channels(names, layer, prefix);
+                c.retain(|c| {
+                    let last = c.rsplit('.').next().unwrap_or(c).to_ascii_uppercase();
+                    ["R", "G", "B", "X", "Y", "Z"].contains(&last.as_str())
+                });
+                if c.len() != 3 {
+                    return Err(Error::MissingChannel {
+                        path: file.path().to_path_buf(),
+                        what: format!("guide layer '{layer}'"),
+                        preset: self.mapping.name.clone(),
+                        looked_for: format!("a layer '{layer}' with R, G, B channels"),
+                        present: names.join(", "),
+                    });
+                }
+                if c.as_slice() == color {
+                    return Err(Error::Unsupported {
+                        path: file.path().to_path_buf(),
+                        detail: format!(
+                            "the guide layer '{layer}' is the beauty being denoised; a guide \
+                             must be another estimate of it (the renderer's denoised layer)"
+                        ),
+                    });
+                }
+                c
+            }
+        };
+        Ok(Some(self.load(file, &channels, repaired, None)?))
     }
 
     fn find(

@@ -18,8 +18,10 @@ use crate::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use crate::error::{Error, Result};
 use crate::exr_file::{ExrFile, SampleKind};
 use crate::frame::{Frame, FrameReader};
+use crate::guide::JobGuides;
 use crate::output::{ensure_not_input, ensure_writable_dir};
 use crate::output_locks::OutputClaim;
+use crate::plane::Plane;
 use crate::window::WindowReader;
 
 /// One sequence to denoise.
@@ -35,6 +37,12 @@ pub struct SequenceJob {
     pub overwrite: bool,
     /// Storage type of the denoised channels (None: the input channel's own type).
     pub output_kind: Option<SampleKind>,
+    /// How frames get the guides the reader does not read (Intel Open Image Denoise).
+    pub guides: JobGuides,
+    /// Also write the result into the renderer's denoised beauty, where a file holds one beside
+    /// the noisy beauty ([`Frame::denoised_channels`]): on for outputs, off for the scratch
+    /// files between passes, so later passes still find the renderer's guide there.
+    pub replace_denoised: bool,
 }
 
 /// What a run did.
@@ -82,6 +90,16 @@ impl SequenceJob {
             tracing::info!("{}: written by another run", output.display());
         }
         done
+    }
+
+    /// The channel names a result of `frame` is written into: its beauty, alpha and AOVs, and
+    /// the renderer's denoised beauty where [`SequenceJob::replace_denoised`] says so.
+    fn output_names(&self, frame: &Frame) -> Frame {
+        let mut names = frame.rows(0..0);
+        if !self.replace_denoised {
+            names.denoised_channels = None;
+        }
+        names
     }
 
     /// Checks before any work: no output may be an input, every output folder must be writable,
@@ -158,7 +176,9 @@ impl SequenceJob {
         // decoded frames of the windows in flight, each with its file (every layer) until its
         // output is written: every input is decoded once
         let files: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
-        let mut windows = WindowReader::new(&self.reader, &files, r).keeping_files();
+        let mut windows = WindowReader::new(&self.reader, &files, r)
+            .keeping_files()
+            .with_guides(self.guides.clone());
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let total = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
@@ -197,7 +217,8 @@ impl SequenceJob {
             let denoising = denoising.elapsed();
             let writing = Instant::now();
             let file = windows.take_file(pos).expect("each frame is written once");
-            write_result(file, windows.frame(pos), &out, output, self.output_kind)?;
+            let names = self.output_names(windows.frame(pos));
+            write_result(file, &names, &out, output, self.output_kind)?;
             drop(claim);
             tracing::debug!(
                 "{}: {:.1} s, of which decoding the frames new to this window {:.1} s, \
@@ -231,6 +252,8 @@ impl SequenceJob {
         let n = self.inputs.len();
         let mut report = JobReport::default();
         let mut stats: BTreeMap<usize, FrameStats> = BTreeMap::new();
+        // whole-frame OIDN guides of the frames in the windows in flight (computed once each)
+        let mut oidn: BTreeMap<usize, Plane> = BTreeMap::new();
         let band = method.band_rows().max(1);
         let halo = method.halo();
         let frames = self.output_count();
@@ -251,6 +274,13 @@ impl SequenceJob {
                     e.insert(s);
                 }
             }
+            if let JobGuides::Oidn { guides, originals } = &self.guides {
+                for &k in idx.iter().flatten() {
+                    if let std::collections::btree_map::Entry::Vacant(e) = oidn.entry(k) {
+                        e.insert(guides.of_file(&self.reader, &originals[k])?);
+                    }
+                }
+            }
             let gathering = gathering.elapsed();
             let reach: Vec<Option<MotionReach>> =
                 idx.iter().map(|i| i.map(|k| stats[&k].reach)).collect();
@@ -265,8 +295,14 @@ impl SequenceJob {
                     .iter()
                     .zip(&rows)
                     .map(|(i, rows)| {
-                        i.map(|k| self.reader.read_rows(&self.inputs[k].1, rows.clone()))
-                            .transpose()
+                        i.map(|k| {
+                            let mut f = self.reader.read_rows(&self.inputs[k].1, rows.clone())?;
+                            if let Some(g) = oidn.get(&k) {
+                                f.guide = Some(g.rows(rows.clone()));
+                            }
+                            Ok(f)
+                        })
+                        .transpose()
                     })
                     .collect::<Result<Vec<Option<Frame>>>>()?;
                 let bands = frame_bands(&crops, &rows, height);
@@ -281,10 +317,11 @@ impl SequenceJob {
                 progress(done as f64 + out.end as f64 / height as f64, frames);
                 Ok(d)
             };
+            let names = self.output_names(&stats[&pos].names);
             write_banded(
                 &self.inputs[pos].1,
                 output,
-                &stats[&pos].names,
+                &names,
                 self.output_kind,
                 band,
                 denoise_band,
@@ -303,6 +340,7 @@ impl SequenceJob {
             );
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
+            oidn.retain(|&k, _| k + r > pos);
             progress((done + 1) as f64, frames);
         }
         Ok(report)

@@ -6,6 +6,8 @@
 //!   frames written into copies of their inputs ([`denoised_output`]).
 //! - Windows: read ([`window`]) and aligned onto their centre frame with per-pixel confidence
 //!   ([`motion`], [`warp`], [`confidence`], [`align`]), whole or band by band ([`banding`]).
+//! - Guides for guided networks: the renderer's denoised layer or Intel Open Image Denoise
+//!   per frame ([`guide`]).
 //! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
 //!   ([`classic`]), whole sequences ([`job`]) and runs of several passes ([`passes`]).
 //! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]) and the HTML report
@@ -22,6 +24,7 @@ pub mod error;
 pub mod evaluation;
 pub mod exr_file;
 pub mod frame;
+pub mod guide;
 pub mod hygiene;
 pub mod image_ops;
 pub mod job;

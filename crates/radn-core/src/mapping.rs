@@ -74,6 +74,11 @@ pub struct ChannelMapping {
     pub motion_prev: Option<MotionSpec>,
     /// Motion towards the next frame.
     pub motion_next: Option<MotionSpec>,
+    /// The renderer's own denoised beauty (RGB), where a file holds it beside the noisy one
+    /// (Cycles with denoising data stored: `Combined` is denoised, `Noisy Image` noisy). Only
+    /// a layer other than the one [`ChannelMapping::color`] resolved to counts: the noisy
+    /// beauty is always what radn denoises, the denoised one at most its guide.
+    pub denoised: Option<PlaneSpec>,
 }
 
 const BUILTIN: &[(&str, &str)] = &[
@@ -147,6 +152,9 @@ impl ChannelMapping {
         }
         if let Some(s) = &self.depth {
             n(s, 1, "depth")?;
+        }
+        if let Some(s) = &self.denoised {
+            n(s, 3, "denoised")?;
         }
         for (m, what) in [
             (&self.motion_prev, "motion_prev"),

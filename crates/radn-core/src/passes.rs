@@ -10,6 +10,7 @@ use crate::denoiser::WindowDenoiser;
 use crate::error::{Error, Result};
 use crate::exr_file::SampleKind;
 use crate::frame::FrameReader;
+use crate::guide::{JobGuides, OidnGuides};
 use crate::job::{JobReport, SequenceJob};
 use crate::sequence::SequencePattern;
 
@@ -29,6 +30,9 @@ pub struct DenoiseRun {
     pub output_kind: Option<SampleKind>,
     /// Passes in all (at least 1): pass p + 1 denoises pass p's results.
     pub passes: usize,
+    /// Intel Open Image Denoise guides, computed from the original inputs in every pass
+    /// (a guide layer is read by `reader`; scratch files between passes keep it as it was).
+    pub oidn: Option<std::sync::Arc<OidnGuides>>,
 }
 
 /// Where a run is: pass `pass` of `passes` has written `done` (fractional while a frame is in
@@ -71,8 +75,16 @@ impl DenoiseRun {
             .iter()
             .map(|f| numbers.contains(f).then(|| self.output.path(*f)))
             .collect();
-        let job =
-            |inputs: Vec<(i64, PathBuf)>, outputs: Vec<Option<PathBuf>>, last: bool| SequenceJob {
+        let originals: std::collections::BTreeMap<i64, PathBuf> = inputs.iter().cloned().collect();
+        let job = |inputs: Vec<(i64, PathBuf)>, outputs: Vec<Option<PathBuf>>, last: bool| {
+            let guides = match &self.oidn {
+                Some(g) => JobGuides::Oidn {
+                    guides: g.clone(),
+                    originals: inputs.iter().map(|(f, _)| originals[f].clone()).collect(),
+                },
+                None => JobGuides::FromReader,
+            };
+            SequenceJob {
                 inputs,
                 outputs,
                 reader: self.reader.clone(),
@@ -82,7 +94,10 @@ impl DenoiseRun {
                 } else {
                     Some(SampleKind::F32)
                 },
-            };
+                guides,
+                replace_denoised: last,
+            }
+        };
         // the whole run is checked first, also one with nothing left to do: an output that is
         // an input under another spelling of its path is refused, not counted as done
         let (_, height) = job(inputs.clone(), outputs.clone(), true).validate()?;

@@ -9,6 +9,7 @@ use crate::align::{align_window, window_indices, AlignParams, AlignedWindow};
 use crate::error::Result;
 use crate::exr_file::ExrFile;
 use crate::frame::{Frame, FrameReader};
+use crate::guide::JobGuides;
 
 /// Decoded frames of a sequence, read window by window in increasing order of the centre:
 /// a frame is decoded the first time a window reaches it and forgotten once no later window
@@ -18,6 +19,7 @@ pub struct WindowReader<'a> {
     files: &'a [PathBuf],
     radius: usize,
     keep_files: bool,
+    guides: JobGuides,
     frames: BTreeMap<usize, (Frame, Option<ExrFile>)>,
     size: Option<(usize, usize)>,
     repaired: usize,
@@ -31,6 +33,7 @@ impl<'a> WindowReader<'a> {
             files,
             radius,
             keep_files: false,
+            guides: JobGuides::FromReader,
             frames: BTreeMap::new(),
             size: None,
             repaired: 0,
@@ -41,6 +44,13 @@ impl<'a> WindowReader<'a> {
     /// written into a copy of it ([`WindowReader::take_file`]).
     pub fn keeping_files(mut self) -> Self {
         self.keep_files = true;
+        self
+    }
+
+    /// Attaches each frame's guide as it is decoded, where `guides` computes them (the
+    /// reader's own guide layer is read with the frame in any case).
+    pub fn with_guides(mut self, guides: JobGuides) -> Self {
+        self.guides = guides;
         self
     }
 
@@ -66,9 +76,17 @@ impl<'a> WindowReader<'a> {
         self.frames.retain(|&k, _| k + reach >= pos);
         for k in pos.saturating_sub(reach)..(pos + reach + 1).min(self.files.len()) {
             if let std::collections::btree_map::Entry::Vacant(e) = self.frames.entry(k) {
-                let (frame, file) = self.reader.read(&self.files[k])?;
+                let (mut frame, file) = self.reader.read(&self.files[k])?;
                 let (w, h) = *self.size.get_or_insert((frame.width(), frame.height()));
                 frame.ensure_size(w, h)?;
+                if let JobGuides::Oidn { guides, originals } = &self.guides {
+                    let original = &originals[k];
+                    frame.guide = Some(if *original == self.files[k] {
+                        guides.of_frame(&frame, original)?
+                    } else {
+                        guides.of_file(self.reader, original)?
+                    });
+                }
                 self.repaired += frame.repaired;
                 e.insert((frame, self.keep_files.then_some(file)));
             }

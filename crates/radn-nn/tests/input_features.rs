@@ -40,6 +40,7 @@ fn window(level: &str, centre: i64) -> AlignedWindow {
 const BOTH: InputConfig = InputConfig {
     exposure: true,
     noise: true,
+    guide: false,
 };
 
 #[test]

@@ -229,6 +229,7 @@ fn banded_denoising_equals_whole_frame_denoising() {
     let inputs = InputConfig {
         exposure: true,
         noise: true,
+        guide: false,
     };
     let m = model_reading(d.path(), Some(0.5), inputs);
     let input = tall(d.path());

@@ -168,6 +168,7 @@ mod tests {
                 normal: None,
                 depth: None,
                 aovs: vec![],
+                guide: None,
                 confidence: Plane::filled(1, 1, 1, conf[k]),
                 flow: Plane::zeros(1, 1, 2),
             })

@@ -258,6 +258,7 @@ mod tests {
                 normal: None,
                 depth: None,
                 aovs: vec![],
+                guide: None,
                 confidence: Plane::filled(w, h, 1, conf[k]),
                 flow: Plane::zeros(w, h, 2),
             })

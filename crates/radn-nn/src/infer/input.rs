@@ -137,7 +137,8 @@ pub fn features_in(win: &AlignedWindow, depth_ref: f32, region: Region) -> Vec<f
 }
 
 /// The input a network configured with `inputs` reads for one region, `[T, C, h, w]`: the
-/// base features, colour divided by the exposure where asked, and the noise estimate.
+/// base features, colour divided by the exposure where asked, the noise estimate and the
+/// guide. A network that reads a guide needs one in every frame of the window.
 pub fn network_input(
     win: &AlignedWindow,
     scales: FeatureScales,
@@ -152,9 +153,21 @@ pub fn network_input(
     for f in &win.frames {
         region.crop(&f.color, &mut colour);
     }
+    let guide = inputs.guide.then(|| {
+        let mut g = Vec::with_capacity(win.frames.len() * 3 * region.pixels());
+        for f in &win.frames {
+            let plane = f
+                .guide
+                .as_ref()
+                .expect("a guided network's windows carry guides (checked by its denoiser)");
+            region.crop(plane, &mut g);
+        }
+        g
+    });
     network_features(
         base,
         &colour,
+        guide.as_deref(),
         win.frames.len(),
         region.pixels(),
         inputs,
@@ -163,9 +176,10 @@ pub fn network_input(
 }
 
 /// The features a network configured with `inputs` reads, from the base features `base`
-/// (`[T, INPUT_CHANNELS, n]`, as [`features_in`] makes and tiles store) and the linear colour
-/// `colour` (`[T, 3, n]`) of the same pixels; `exposure` is the centre frame's
-/// ([`FeatureScales::exposure`]). Training and inference both build their input here.
+/// (`[T, INPUT_CHANNELS, n]`, as [`features_in`] makes and tiles store), the linear colour
+/// `colour` (`[T, 3, n]`) of the same pixels and, for a guided network, their linear guide
+/// `guide` (`[T, 3, n]`); `exposure` is the centre frame's ([`FeatureScales::exposure`]).
+/// Training and inference both build their input here.
 ///
 /// - `exposure`: the log colour becomes `ln(1 + max(0, c) / exposure)`.
 /// - `noise`: one more channel per frame, the same in every frame: at each pixel, the spread
@@ -173,9 +187,13 @@ pub fn network_input(
 ///   their confidence `c_k`: `sqrt(Σ c_k (ℓ_k − ℓ̄)² / Σ c_k · n/(n − 1))` with `n = (Σ c_k)² /
 ///   Σ c_k²` the effective number of frames (0 where fewer than about one frame besides the
 ///   centre is trusted).
+/// - `guide`: three more channels per frame, after the others: the guide transformed as the
+///   log colour is (`ln(1 + max(0, g) / exposure)`, without the division where `exposure` is
+///   off).
 pub fn network_features(
     base: Vec<f32>,
     colour: &[f32],
+    guide: Option<&[f32]>,
     frames: usize,
     pixels: usize,
     inputs: &InputConfig,
@@ -189,7 +207,12 @@ pub fn network_features(
     debug_assert_eq!(base.len(), frames * INPUT_CHANNELS * n);
     debug_assert_eq!(colour.len(), frames * 3 * n);
     let mut out = Vec::with_capacity(frames * c * n);
-    let inv = 1.0 / exposure;
+    let inv = if inputs.exposure { 1.0 / exposure } else { 1.0 };
+    let guide_at = INPUT_CHANNELS + usize::from(inputs.noise);
+    if inputs.guide {
+        let g = guide.expect("a guided network's input needs the guide");
+        assert_eq!(g.len(), frames * 3 * n, "the guide is [T, 3, n]");
+    }
     for k in 0..frames {
         let b = &base[k * INPUT_CHANNELS * n..(k + 1) * INPUT_CHANNELS * n];
         if inputs.exposure {
@@ -202,7 +225,12 @@ pub fn network_features(
         if inputs.noise {
             out.extend(std::iter::repeat_n(0.0, n));
         }
+        if let (true, Some(g)) = (inputs.guide, guide) {
+            let g = &g[k * 3 * n..(k + 1) * 3 * n];
+            out.extend(g.iter().map(|&v| (v.max(0.0) * inv).ln_1p()));
+        }
     }
+    debug_assert_eq!(guide_at + 3 * usize::from(inputs.guide), c);
     if inputs.noise {
         let at = |k: usize, ch: usize, p: usize| (k * c + ch) * n + p;
         // per frame: (log luminance, confidence) of the pixel
@@ -299,6 +327,7 @@ mod tests {
     const BOTH: InputConfig = InputConfig {
         exposure: true,
         noise: true,
+        guide: false,
     };
 
     /// The noise channel (the same in every frame) of `network_features`' output.
@@ -311,7 +340,7 @@ mod tests {
         let n = 4096;
         let (sigma, mu) = (0.2f32, 1.0f32);
         let (base, colour) = window(5, n, mu, sigma, 0.5, |_| 1.0);
-        let out = network_features(base, &colour, 5, n, &BOTH, 0.5);
+        let out = network_features(base, &colour, None, 5, n, &BOTH, 0.5);
         assert_eq!(out.len(), 5 * 12 * n);
         let mean = noise_channel(&out, n).iter().sum::<f32>() / n as f32;
         // E[s] of 5 normal samples is c4(5)·σ = 0.9400·σ
@@ -329,7 +358,7 @@ mod tests {
         }
         // without noise the estimate is zero
         let (base, colour) = window(5, 64, mu, 0.0, 0.5, |_| 1.0);
-        let out = network_features(base, &colour, 5, 64, &BOTH, 0.5);
+        let out = network_features(base, &colour, None, 5, 64, &BOTH, 0.5);
         assert!(noise_channel(&out, 64).iter().all(|&s| s < 1e-6));
     }
 
@@ -339,7 +368,7 @@ mod tests {
         // frame 0 is misaligned (confidence 0) and wildly different
         let (base, mut colour) = window(5, n, 1.0, 0.2, 1.0, |k| if k == 0 { 0.0 } else { 1.0 });
         colour[..3 * n].fill(1000.0);
-        let out = network_features(base.clone(), &colour, 5, n, &BOTH, 1.0);
+        let out = network_features(base.clone(), &colour, None, 5, n, &BOTH, 1.0);
         // the same as the four trusted frames alone
         let four = network_features(
             base[INPUT_CHANNELS * n..].to_vec(),
@@ -354,7 +383,7 @@ mod tests {
         }
         // only the centre trusted: nothing to estimate from, zero
         let (base, colour) = window(5, n, 1.0, 0.2, 1.0, |k| if k == 2 { 1.0 } else { 0.0 });
-        let out = network_features(base, &colour, 5, n, &BOTH, 1.0);
+        let out = network_features(base, &colour, None, 5, n, &BOTH, 1.0);
         assert!(noise_channel(&out, n).iter().all(|&s| s == 0.0));
     }
 
@@ -363,8 +392,8 @@ mod tests {
         let n = 512;
         let (base, colour) = window(5, n, 0.7, 0.3, 0.25, |k| 0.5 + 0.1 * k as f32);
         let brighter: Vec<f32> = colour.iter().map(|v| v * 8.0).collect();
-        let a = network_features(base.clone(), &colour, 5, n, &BOTH, 0.25);
-        let b = network_features(base.clone(), &brighter, 5, n, &BOTH, 2.0);
+        let a = network_features(base.clone(), &colour, None, 5, n, &BOTH, 0.25);
+        let b = network_features(base.clone(), &brighter, None, 5, n, &BOTH, 2.0);
         for (i, (x, y)) in a.iter().zip(&b).enumerate() {
             assert!((x - y).abs() < 1e-5, "feature {i}: {x} vs {y}");
         }
@@ -377,7 +406,15 @@ mod tests {
             .fold(0.0f32, f32::max);
         assert!(moved > 1.0, "{moved}");
         // base features pass through untouched
-        let plain = network_features(base.clone(), &colour, 5, n, &InputConfig::default(), 0.25);
+        let plain = network_features(
+            base.clone(),
+            &colour,
+            None,
+            5,
+            n,
+            &InputConfig::default(),
+            0.25,
+        );
         assert_eq!(plain, base);
     }
 

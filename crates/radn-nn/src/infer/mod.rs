@@ -322,12 +322,32 @@ struct Tile {
     region: Region,
 }
 
+impl NetworkDenoiser {
+    /// A guided network needs every frame's guide: an error naming the first frame without
+    /// one. A network that reads no guide ignores guides.
+    fn check_guides<'f>(&self, frames: impl Iterator<Item = &'f Frame>) -> radn_core::Result<()> {
+        if !self.denoiser.config.inputs.guide {
+            return Ok(());
+        }
+        match frames.into_iter().find(|f| f.guide.is_none()) {
+            Some(f) => Err(radn_core::Error::Guide {
+                path: f.path.clone(),
+                detail: "the model reads a guide and this frame has none (give one with \
+                         --guide oidn, --guide denoised or --guide LAYER)"
+                    .into(),
+            }),
+            None => Ok(()),
+        }
+    }
+}
+
 impl WindowDenoiser for NetworkDenoiser {
     fn radius(&self) -> usize {
         self.denoiser.config.frames / 2
     }
 
     fn denoise(&self, window: &[Option<&Frame>]) -> radn_core::Result<Denoised> {
+        self.check_guides(window.iter().flatten().copied())?;
         let win = timed(Stage::Align, || align_window(window, &self.align));
         let out = self.denoise_aligned(&win);
         log_stages(
@@ -368,6 +388,7 @@ impl BandDenoiser for NetworkDenoiser {
         out: Range<usize>,
         centre: &FrameStats,
     ) -> radn_core::Result<Denoised> {
+        self.check_guides(window.iter().flatten().map(|b| b.frame))?;
         let win = timed(Stage::Align, || align_bands(window, &self.align));
         let scales = FeatureScales {
             depth: centre.mean_depth(),
@@ -439,6 +460,7 @@ mod tests {
                     normal: Some(plane(3, k + 3)),
                     depth: Some(Plane::filled(w, h, 1, 3.0)),
                     aovs: vec![plane(3, k + 4)],
+                    guide: None,
                     confidence: Plane::filled(w, h, 1, 0.9),
                     flow: Plane::zeros(w, h, 2),
                 })

@@ -119,8 +119,9 @@ const PRESETS: &[(&str, &str)] = &[
 /// confidence (1). Tiles store these; [`InputConfig`] derives the network's own from them.
 pub const INPUT_CHANNELS: usize = 11;
 
-/// Input features a network may ask for beyond the base ones (issue 18, point 5). Both are
-/// computed from the window alone, the same way at training and at inference
+/// Input features a network may ask for beyond the base ones (issue 18, point 5; the guide,
+/// issue 19). They are computed from the window (and its guides) alone, the same way at
+/// training and at inference
 /// ([`crate::infer::input::network_features`]).
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
 #[serde(deny_unknown_fields)]
@@ -135,17 +136,24 @@ pub struct InputConfig {
     /// tells the network how much of what it sees is noise, at every input level.
     #[serde(default)]
     pub noise: bool,
+    /// Append a guide (issue 19): each frame's spatial estimate of the beauty (the
+    /// renderer's denoised layer or Intel Open Image Denoise's result, `radn denoise
+    /// --guide`), warped with the window and transformed as the colour (three channels after
+    /// the others). Kernels are still applied to the noisy frames: the guide steers the
+    /// weights only.
+    #[serde(default)]
+    pub guide: bool,
 }
 
 impl InputConfig {
     /// True for the base features only (models from before these options).
     pub fn is_base(&self) -> bool {
-        !self.exposure && !self.noise
+        !self.exposure && !self.noise && !self.guide
     }
 
     /// Channels per frame the network reads.
     pub fn channels(&self) -> usize {
-        INPUT_CHANNELS + usize::from(self.noise)
+        INPUT_CHANNELS + usize::from(self.noise) + 3 * usize::from(self.guide)
     }
 }
 

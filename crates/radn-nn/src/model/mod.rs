@@ -664,6 +664,7 @@ mod tests {
             let inputs = InputConfig {
                 exposure: false,
                 noise: true,
+                guide: false,
             };
             let grown = old.clone().with_inputs(inputs, &device);
             assert_eq!(grown.config.input_channels(), INPUT_CHANNELS + 1);
@@ -690,6 +691,7 @@ mod tests {
             InputConfig {
                 exposure: true,
                 noise: true,
+                guide: false,
             },
             &train,
         );

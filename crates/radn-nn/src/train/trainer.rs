@@ -264,6 +264,7 @@ pub fn make_batch(
         f.extend(network_features(
             base,
             &colour,
+            None,
             frames,
             crop * crop,
             inputs,

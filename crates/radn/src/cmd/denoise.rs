@@ -1,11 +1,13 @@
 //! `radn denoise`: denoise an EXR sequence.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
 use radn_core::classic::pipeline::{ClassicDenoiser, ClassicParams};
 use radn_core::denoiser::WindowDenoiser;
-use radn_core::frame::Requirements;
+use radn_core::frame::{FrameReader, Requirements};
+use radn_core::guide::{GuideChoice, OidnGuides};
 use radn_core::passes::DenoiseRun;
 use radn_core::sequence::{sequence_files, SequencePattern};
 use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
@@ -100,9 +102,65 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     pub passes: usize,
     #[command(flatten)]
+    pub guide: GuideArgs,
+    #[command(flatten)]
     pub classic: ClassicArgs,
     #[command(flatten)]
     pub channels: ChannelArgs,
+}
+
+/// Where a guided network's per-frame guide comes from.
+#[derive(clap::Args, Clone, Debug)]
+pub struct GuideArgs {
+    /// Network: a per-frame spatial estimate of the beauty that a guided model reads beside
+    /// the noisy window (kernels are still applied to the noisy frames): `oidn` (Intel Open
+    /// Image Denoise on each frame, HDR, prefiltered albedo and normal), `denoised` (the
+    /// renderer's own denoised beauty beside the noisy one, e.g. Cycles' Combined with Noisy
+    /// Image), a layer name, or `none`.
+    #[arg(long, value_name = "oidn|denoised|LAYER|none", default_value = "none",
+          value_parser = parse_guide)]
+    pub guide: GuideChoice,
+    /// Threads Intel Open Image Denoise uses for `--guide oidn` (0: every core).
+    #[arg(long, default_value_t = 0)]
+    pub oidn_threads: usize,
+}
+
+impl GuideArgs {
+    /// Sets `reader` to read the guide layer, if the guide is one, and opens Intel Open Image
+    /// Denoise, if the guide is its.
+    pub fn apply(&self, reader: &mut FrameReader) -> Result<Option<Arc<OidnGuides>>> {
+        reader.guide = self.guide.layer();
+        Ok(match self.guide {
+            GuideChoice::Oidn => Some(Arc::new(OidnGuides::new(self.oidn_threads)?)),
+            _ => None,
+        })
+    }
+
+    /// Checks that `model` (shown as `label`) and the guide go together: a guided model needs
+    /// a guide, and a guide needs a guided model.
+    pub fn check_model(&self, model: &radn_nn::model::Denoiser, label: &Path) -> Result<()> {
+        match (model.config.inputs.guide, self.guide.is_some()) {
+            (true, false) => Err(anyhow!(
+                "{} reads a guide: give one with --guide oidn, --guide denoised or --guide LAYER",
+                label.display()
+            )),
+            (false, true) => Err(anyhow!(
+                "{} reads no guide, so --guide {} would change nothing: drop --guide or pass a \
+                 guided model with --model",
+                label.display(),
+                match &self.guide {
+                    GuideChoice::Layer(l) => l.as_str(),
+                    GuideChoice::Oidn => "oidn",
+                    _ => "denoised",
+                }
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+fn parse_guide(s: &str) -> Result<GuideChoice, String> {
+    Ok(GuideChoice::parse(s))
 }
 
 /// Options of the classic (non-neural) denoiser.
@@ -175,9 +233,15 @@ pub fn run(a: Args) -> Result<()> {
     let mut reader = a.channels.reader(&wanted[0].1, Requirements::DENOISE)?;
     reader.aovs = a.aovs.clone();
     let method: Box<dyn WindowDenoiser> = match a.method {
+        Method::Classic if a.guide.guide.is_some() => {
+            return Err(anyhow!(
+                "--guide steers a guided network; the classic denoiser reads no guide"
+            ))
+        }
         Method::Classic => Box::new(a.classic.denoiser()),
         Method::Network => Box::new(network_from(&a)?),
     };
+    let oidn = a.guide.apply(&mut reader)?;
     let run = DenoiseRun {
         input: SequencePattern::parse_or_folder(&a.input)?,
         output: SequencePattern::parse(&a.output)?,
@@ -190,6 +254,7 @@ pub fn run(a: Args) -> Result<()> {
         } else {
             1
         },
+        oidn,
     };
     let t = std::time::Instant::now();
     let mut bar: Option<(usize, indicatif::ProgressBar)> = None;
@@ -228,6 +293,8 @@ pub fn run(a: Args) -> Result<()> {
 fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     let device = radn_nn::burn::tensor::Device::flex();
     let d = crate::model::load(a.model.as_deref(), &device)?;
+    a.guide
+        .check_model(&d, &crate::model::label(a.model.as_deref()))?;
     let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
     if let Some(t) = a.threshold {
         let k = n.denoiser.config.kernel_taps() as f32;

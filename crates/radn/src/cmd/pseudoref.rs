@@ -57,6 +57,8 @@ pub fn run(a: Args) -> Result<()> {
             reader,
             overwrite: a.overwrite,
             output_kind,
+            guides: radn_core::guide::JobGuides::FromReader,
+            replace_denoised: true,
         });
     }
     let total: usize = jobs.iter().map(|j| j.output_count()).sum();

@@ -1,0 +1,479 @@
+//! Intel Open Image Denoise 2.x, loaded at run time: the per-frame spatial estimate a guided
+//! network reads (`radn denoise --guide oidn`).
+//!
+//! The library is opened when a guide is first asked for, not linked: radn builds and runs
+//! without OIDN, and only `--guide oidn` needs it. Where it is looked for, in order:
+//! `$RADN_OIDN_LIBRARY` (the library file, or the folder holding it; when set, nothing else is
+//! tried), `$OIDN_DIR/lib`, the
+//! system's loader path (`libOpenImageDenoise.so.2`), and the `pyoidn` wheel of the `python3`
+//! on `PATH` (which `scripts/setup` installs: `pyoidn==2.5.1.0` ships OIDN 2.5.1 with its CPU
+//! device and TBB). The wheel's library finds its core and device modules in its own folder.
+//!
+//! Each frame is filtered as OIDN recommends for final frames: the albedo and the normal are
+//! denoised first, each by its own `RT` filter, and the beauty filter (HDR) then runs with
+//! `cleanAux` on. This is the "prefiltered" mode of `tools/datagen` (`radn_datagen oidn`), so
+//! the guides radn computes equal those of the training data.
+
+use std::ffi::{c_char, c_int, c_void, CStr, CString};
+use std::path::{Path, PathBuf};
+
+use crate::plane::Plane;
+
+/// An OIDN device type: the CPU.
+const DEVICE_TYPE_CPU: c_int = 1;
+/// OIDN's `OIDN_FORMAT_FLOAT3`.
+const FORMAT_FLOAT3: c_int = 3;
+/// OIDN's `OIDN_QUALITY_HIGH` (final-frame quality).
+const QUALITY_HIGH: c_int = 6;
+/// The oldest OIDN whose C API this module speaks (2.0.0, as `major*10000 + minor*100 + patch`).
+const OLDEST_VERSION: c_int = 20000;
+
+/// Why OIDN could not be used: the message says what to install or what failed.
+#[derive(Debug, thiserror::Error)]
+pub enum OidnError {
+    /// The library was not found, or not a usable OIDN 2.x.
+    #[error(
+        "Intel Open Image Denoise 2.x is not available: {detail}. Install it with \
+         `scripts/setup` (pip package pyoidn==2.5.1.0) or a system OIDN 2.x, or point \
+         RADN_OIDN_LIBRARY at libOpenImageDenoise.so.2"
+    )]
+    Unavailable {
+        /// What was tried and what failed.
+        detail: String,
+    },
+    /// OIDN reported an error.
+    #[error("Intel Open Image Denoise failed in {stage}: {message}")]
+    Failed {
+        /// What it was doing.
+        stage: String,
+        /// OIDN's own message.
+        message: String,
+    },
+    /// The images cannot be filtered together.
+    #[error("Intel Open Image Denoise: {0}")]
+    Input(String),
+}
+
+type NewDevice = unsafe extern "C" fn(c_int) -> *mut c_void;
+type DeviceFn = unsafe extern "C" fn(*mut c_void);
+type SetDeviceInt = unsafe extern "C" fn(*mut c_void, *const c_char, c_int);
+type GetDeviceInt = unsafe extern "C" fn(*mut c_void, *const c_char) -> c_int;
+type GetDeviceError = unsafe extern "C" fn(*mut c_void, *mut *const c_char) -> c_int;
+type NewFilter = unsafe extern "C" fn(*mut c_void, *const c_char) -> *mut c_void;
+type FilterFn = unsafe extern "C" fn(*mut c_void);
+type SetSharedFilterImage = unsafe extern "C" fn(
+    *mut c_void,
+    *const c_char,
+    *mut c_void,
+    c_int,
+    usize,
+    usize,
+    usize,
+    usize,
+    usize,
+);
+type UnsetFilterImage = unsafe extern "C" fn(*mut c_void, *const c_char);
+type SetFilterBool = unsafe extern "C" fn(*mut c_void, *const c_char, bool);
+type SetFilterInt = unsafe extern "C" fn(*mut c_void, *const c_char, c_int);
+
+/// The C functions radn calls, resolved once from the library.
+struct Api {
+    new_device: NewDevice,
+    commit_device: DeviceFn,
+    release_device: DeviceFn,
+    set_device_int: SetDeviceInt,
+    get_device_int: GetDeviceInt,
+    get_device_error: GetDeviceError,
+    new_filter: NewFilter,
+    commit_filter: FilterFn,
+    execute_filter: FilterFn,
+    release_filter: FilterFn,
+    set_shared_filter_image: SetSharedFilterImage,
+    unset_filter_image: UnsetFilterImage,
+    set_filter_bool: SetFilterBool,
+    set_filter_int: SetFilterInt,
+}
+
+impl Api {
+    fn load(lib: &libloading::Library) -> Result<Self, String> {
+        fn get<T: Copy>(lib: &libloading::Library, name: &str) -> Result<T, String> {
+            // SAFETY: every caller below names an OIDN 2.x function with its signature of
+            // type T (oidn.h); the library outlives the pointers (`OidnDenoiser` drops it last).
+            unsafe { lib.get::<T>(name.as_bytes()) }
+                .map(|s| *s)
+                .map_err(|e| format!("the library lacks {name}: {e}"))
+        }
+        Ok(Self {
+            new_device: get(lib, "oidnNewDevice")?,
+            commit_device: get(lib, "oidnCommitDevice")?,
+            release_device: get(lib, "oidnReleaseDevice")?,
+            set_device_int: get(lib, "oidnSetDeviceInt")?,
+            get_device_int: get(lib, "oidnGetDeviceInt")?,
+            get_device_error: get(lib, "oidnGetDeviceError")?,
+            new_filter: get(lib, "oidnNewFilter")?,
+            commit_filter: get(lib, "oidnCommitFilter")?,
+            execute_filter: get(lib, "oidnExecuteFilter")?,
+            release_filter: get(lib, "oidnReleaseFilter")?,
+            set_shared_filter_image: get(lib, "oidnSetSharedFilterImage")?,
+            unset_filter_image: get(lib, "oidnUnsetFilterImage")?,
+            set_filter_bool: get(lib, "oidnSetFilterBool")?,
+            set_filter_int: get(lib, "oidnSetFilterInt")?,
+        })
+    }
+}
+
+/// The file name the OIDN 2.x library has on this platform.
+fn library_name() -> &'static str {
+    if cfg!(target_os = "macos") {
+        "libOpenImageDenoise.2.dylib"
+    } else if cfg!(windows) {
+        "OpenImageDenoise.dll"
+    } else {
+        "libOpenImageDenoise.so.2"
+    }
+}
+
+/// Where to look for the library, in order (see the module documentation), with what each
+/// candidate is, for messages.
+fn candidates() -> Vec<(PathBuf, String)> {
+    let name = library_name();
+    let mut out = Vec::new();
+    let in_dir = |d: &Path| {
+        if d.is_dir() {
+            d.join(name)
+        } else {
+            d.to_path_buf()
+        }
+    };
+    if let Some(p) = std::env::var_os("RADN_OIDN_LIBRARY") {
+        // an explicit choice: nothing else is tried
+        out.push((in_dir(Path::new(&p)), "RADN_OIDN_LIBRARY".into()));
+        return out;
+    }
+    if let Some(d) = std::env::var_os("OIDN_DIR") {
+        out.push((Path::new(&d).join("lib").join(name), "OIDN_DIR".into()));
+    }
+    out.push((PathBuf::from(name), "the system loader path".into()));
+    if let Some(d) = pyoidn_lib_dir() {
+        out.push((d.join(name), "the pyoidn wheel".into()));
+    }
+    out
+}
+
+/// The `lib/` folder of the `pyoidn` wheel installed for `python3`, if any.
+fn pyoidn_lib_dir() -> Option<PathBuf> {
+    let out = std::process::Command::new("python3")
+        .args([
+            "-c",
+            "import importlib.util as u, os; s = u.find_spec('pyoidn'); \
+             print(os.path.join(os.path.dirname(s.origin), 'oidn', 'lib') if s else '')",
+        ])
+        .stderr(std::process::Stdio::null())
+        .output()
+        .ok()?;
+    let dir = String::from_utf8(out.stdout).ok()?.trim().to_string();
+    (!dir.is_empty()).then(|| PathBuf::from(dir))
+}
+
+/// One OIDN CPU device and the three `RT` filters of prefiltered denoising (albedo, normal,
+/// beauty), kept across frames: creating and first committing a filter costs far more than
+/// filtering once more with new images.
+pub struct OidnDenoiser {
+    api: Api,
+    device: *mut c_void,
+    /// Albedo, normal and beauty filters, created when first used.
+    filters: [*mut c_void; 3],
+    version: c_int,
+    /// The library file that was opened.
+    path: PathBuf,
+    // last: the functions above point into it
+    _lib: libloading::Library,
+}
+
+// SAFETY: OIDN devices and filters may be used from any thread, one call at a time; radn
+// holds an `OidnDenoiser` behind `&mut` (or a mutex) for every call.
+unsafe impl Send for OidnDenoiser {}
+
+impl OidnDenoiser {
+    /// Opens the library (see the module documentation for where it is looked for) and makes
+    /// a CPU device using `threads` threads (0: OIDN's choice, every core).
+    pub fn new(threads: usize) -> Result<Self, OidnError> {
+        let mut tried = Vec::new();
+        for (path, what) in candidates() {
+            // SAFETY: loading OIDN runs only its (and TBB's) library initialisers.
+            match unsafe { libloading::Library::new(&path) } {
+                Ok(lib) => return Self::with_library(lib, path, threads),
+                Err(e) => tried.push(format!("{} ({what}): {e}", path.display())),
+            }
+        }
+        Err(OidnError::Unavailable {
+            detail: format!("tried {}", tried.join("; ")),
+        })
+    }
+
+    fn with_library(
+        lib: libloading::Library,
+        path: PathBuf,
+        threads: usize,
+    ) -> Result<Self, OidnError> {
+        let api = Api::load(&lib).map_err(|detail| OidnError::Unavailable {
+            detail: format!("{}: {detail}", path.display()),
+        })?;
+        // SAFETY: OIDN's C API, called as oidn.h documents.
+        let device = unsafe { (api.new_device)(DEVICE_TYPE_CPU) };
+        let mut me = Self {
+            api,
+            device,
+            filters: [std::ptr::null_mut(); 3],
+            version: 0,
+            path,
+            _lib: lib,
+        };
+        if device.is_null() {
+            return Err(OidnError::Unavailable {
+                detail: format!("{}: no CPU device could be made", me.path.display()),
+            });
+        }
+        let c = |s: &str| CString::new(s).expect("no NUL in a parameter name");
+        // SAFETY: a live device; parameter names are NUL-terminated.
+        unsafe {
+            if threads > 0 {
+                (me.api.set_device_int)(
+                    device,
+                    c("numThreads").as_ptr(),
+                    threads.min(c_int::MAX as usize) as c_int,
+                );
+            }
+            (me.api.commit_device)(device);
+        }
+        me.check("creating the CPU device").map_err(|e| match e {
+            OidnError::Failed { message, .. } => OidnError::Unavailable {
+                detail: format!("{}: {message}", me.path.display()),
+            },
+            e => e,
+        })?;
+        // SAFETY: a committed device.
+        me.version = unsafe { (me.api.get_device_int)(device, c("version").as_ptr()) };
+        if me.version < OLDEST_VERSION {
+            return Err(OidnError::Unavailable {
+                detail: format!(
+                    "{} is OIDN {}, older than 2.0",
+                    me.path.display(),
+                    version_text(me.version)
+                ),
+            });
+        }
+        tracing::info!(
+            "Intel Open Image Denoise {} from {}",
+            version_text(me.version),
+            me.path.display()
+        );
+        Ok(me)
+    }
+
+    /// The library's version, e.g. "2.5.1".
+    pub fn version(&self) -> String {
+        version_text(self.version)
+    }
+
+    /// The library file that was opened.
+    pub fn library(&self) -> &Path {
+        &self.path
+    }
+
+    /// The device's pending error, if any.
+    fn check(&self, stage: &str) -> Result<(), OidnError> {
+        let mut msg: *const c_char = std::ptr::null();
+        // SAFETY: a live device; OIDN owns the message until the next call.
+        let code = unsafe { (self.api.get_device_error)(self.device, &mut msg) };
+        if code == 0 {
+            return Ok(());
+        }
+        let message = if msg.is_null() {
+            format!("error code {code}")
+        } else {
+            // SAFETY: a NUL-terminated string from OIDN.
+            unsafe { CStr::from_ptr(msg) }
+                .to_string_lossy()
+                .into_owned()
+        };
+        Err(OidnError::Failed {
+            stage: stage.into(),
+            message,
+        })
+    }
+
+    /// Runs filter `role` (0 albedo, 1 normal, 2 beauty) on interleaved RGB images `images`
+    /// (name, data), all `w × h`, with boolean parameters `flags`.
+    fn run(
+        &mut self,
+        role: usize,
+        w: usize,
+        h: usize,
+        images: &mut [(&str, &mut [f32])],
+        flags: &[(&str, bool)],
+    ) -> Result<(), OidnError> {
+        let stage = [
+            "the albedo filter",
+            "the normal filter",
+            "the beauty filter",
+        ][role];
+        let c = |s: &str| CString::new(s).expect("no NUL in a parameter name");
+        if self.filters[role].is_null() {
+            // SAFETY: a live device.
+            self.filters[role] = unsafe { (self.api.new_filter)(self.device, c("RT").as_ptr()) };
+            self.check(stage)?;
+            if self.filters[role].is_null() {
+                return Err(OidnError::Failed {
+                    stage: stage.into(),
+                    message: "no RT filter could be made".into(),
+                });
+            }
+        }
+        let f = self.filters[role];
+        for (name, data) in images.iter_mut() {
+            assert_eq!(data.len(), 3 * w * h, "an RGB image of the frame's size");
+            // SAFETY: `data` outlives the execution below and holds w*h float3 pixels.
+            unsafe {
+                (self.api.set_shared_filter_image)(
+                    f,
+                    c(name).as_ptr(),
+                    data.as_mut_ptr().cast(),
+                    FORMAT_FLOAT3,
+                    w,
+                    h,
+                    0,
+                    0,
+                    0,
+                )
+            };
+        }
+        // SAFETY: a live filter whose images are set.
+        unsafe {
+            for (name, value) in flags {
+                (self.api.set_filter_bool)(f, c(name).as_ptr(), *value);
+            }
+            (self.api.set_filter_int)(f, c("quality").as_ptr(), QUALITY_HIGH);
+            (self.api.commit_filter)(f);
+        }
+        self.check(stage)?;
+        // SAFETY: a committed filter.
+        unsafe { (self.api.execute_filter)(f) };
+        let result = self.check(stage);
+        // the images are the caller's: forget them before they go
+        for (name, _) in images.iter() {
+            // SAFETY: a live filter.
+            unsafe { (self.api.unset_filter_image)(f, c(name).as_ptr()) };
+        }
+        result
+    }
+
+    /// OIDN's estimate of the HDR beauty `color` (RGB) with its noisy auxiliaries, both
+    /// prefiltered first (albedo without normal is allowed; a normal needs the albedo).
+    /// Negative colour is clamped to 0, the albedo to [0, 1] and the normal to [−1, 1], as
+    /// OIDN expects.
+    pub fn denoise(
+        &mut self,
+        color: &Plane,
+        albedo: Option<&Plane>,
+        normal: Option<&Plane>,
+    ) -> Result<Plane, OidnError> {
+        let (w, h) = (color.width(), color.height());
+        for (p, what) in [(albedo, "albedo"), (normal, "normal")] {
+            if let Some(p) = p {
+                if !p.same_size(color) || p.channels() != 3 {
+                    return Err(OidnError::Input(format!(
+                        "the {what} is {}x{}x{}, the beauty {w}x{h}x3",
+                        p.width(),
+                        p.height(),
+                        p.channels()
+                    )));
+                }
+            }
+        }
+        if color.channels() != 3 {
+            return Err(OidnError::Input("the beauty must be RGB".into()));
+        }
+        if normal.is_some() && albedo.is_none() {
+            return Err(OidnError::Input("a normal needs an albedo".into()));
+        }
+        let mut col = interleave(color, |v| v.max(0.0));
+        let mut out = vec![0.0f32; col.len()];
+        let mut alb = albedo.map(|p| interleave(p, |v| v.clamp(0.0, 1.0)));
+        let mut nrm = normal.map(|p| interleave(p, |v| v.clamp(-1.0, 1.0)));
+        let mut scratch = vec![0.0f32; col.len()];
+        if let Some(a) = alb.as_mut() {
+            self.run(0, w, h, &mut [("albedo", a), ("output", &mut scratch)], &[])?;
+            std::mem::swap(a, &mut scratch);
+        }
+        if let Some(n) = nrm.as_mut() {
+            self.run(1, w, h, &mut [("normal", n), ("output", &mut scratch)], &[])?;
+            std::mem::swap(n, &mut scratch);
+        }
+        let mut images: Vec<(&str, &mut [f32])> = vec![("color", &mut col)];
+        if let Some(a) = alb.as_mut() {
+            images.push(("albedo", a));
+        }
+        if let Some(n) = nrm.as_mut() {
+            images.push(("normal", n));
+        }
+        images.push(("output", &mut out));
+        self.run(2, w, h, &mut images, &[("hdr", true), ("cleanAux", true)])?;
+        Ok(deinterleave(w, h, &out))
+    }
+}
+
+impl Drop for OidnDenoiser {
+    fn drop(&mut self) {
+        // SAFETY: the filters and the device were made by this library and are released once.
+        unsafe {
+            for f in self.filters {
+                if !f.is_null() {
+                    (self.api.release_filter)(f);
+                }
+            }
+            if !self.device.is_null() {
+                (self.api.release_device)(self.device);
+            }
+        }
+    }
+}
+
+fn version_text(v: c_int) -> String {
+    format!("{}.{}.{}", v / 10000, v / 100 % 100, v % 100)
+}
+
+/// Channel-major RGB to interleaved, through `map`.
+fn interleave(p: &Plane, map: impl Fn(f32) -> f32) -> Vec<f32> {
+    let n = p.pixels();
+    let (r, g, b) = (p.channel(0), p.channel(1), p.channel(2));
+    let mut out = Vec::with_capacity(3 * n);
+    for i in 0..n {
+        out.extend_from_slice(&[map(r[i]), map(g[i]), map(b[i])]);
+    }
+    out
+}
+
+/// Interleaved RGB to a channel-major plane.
+fn deinterleave(w: usize, h: usize, v: &[f32]) -> Plane {
+    let n = w * h;
+    let mut data = vec![0.0f32; 3 * n];
+    for i in 0..n {
+        for c in 0..3 {
+            data[c * n + i] = v[3 * i + c];
+        }
+    }
+    Plane::from_vec(w, h, 3, data)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn interleaving_round_trips() {
+        let p = Plane::from_fn(3, 2, 3, |x, y, c| (x + 10 * y + 100 * c) as f32);
+        let back = deinterleave(3, 2, &interleave(&p, |v| v));
+        assert_eq!(back.data(), p.data());
+    }
+}
