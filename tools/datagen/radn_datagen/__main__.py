@@ -59,7 +59,8 @@ def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
 
 
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
-                 calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None):
+                 calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None,
+                 cycles_denoise=False):
     """Renders one scene: the input levels (`levels` and `extra_spp`), the optional reference,
     and the optional teacher render (`teacher` spp) with its OIDN pseudo-reference."""
     import bpy  # noqa: F401  (imported here so --help works without bpy)
@@ -70,7 +71,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
     else:
         desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail)
     sc = scenes.bpy.context.scene
-    render.configure(sc, exr_half=half, threads=threads)
+    render.configure(sc, exr_half=half, threads=threads, cycles_denoise=cycles_denoise)
     for lv in levels:
         if lv not in LEVELS:
             raise SystemExit(f"unknown level '{lv}'; known: {', '.join(LEVELS)}")
@@ -95,7 +96,10 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         "layout": "<scene>/<level>/frame_####.exr",
         "exr": "multilayer half PIZ" if half else "multilayer float ZIP",
         "renderer": f"Blender {scenes.bpy.app.version_string} Cycles (CPU)",
-        "passes": ["Combined", "Denoising Albedo", "Denoising Normal", "Denoising Depth", "Vector", "Depth", "Normal"],
+        "passes": ["Combined", "Denoising Albedo", "Denoising Normal", "Denoising Depth", "Vector", "Depth", "Normal"]
+        + (["Noisy Image"] if cycles_denoise else []),
+        "cycles_denoising": ("Cycles' OIDN: Combined is denoised, Noisy Image the noisy beauty"
+                             if cycles_denoise else "off"),
         "render_seconds_this_run": round(time.time() - t0, 1),
         "detail": bool(detail),
         "scene": desc,
@@ -127,6 +131,9 @@ def main(argv=None):
     common.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
     common.add_argument("--layout", choices=["indoor", "outdoor"], default=None, help="force a layout")
     common.add_argument("--levels", default=",".join(LEVELS), help="noise levels to render (comma-separated)")
+    common.add_argument("--cycles-denoise", action="store_true",
+                        help="run Cycles' own denoiser too: Combined is then denoised and the noisy beauty is "
+                             "written as Noisy Image (for radn's --guide denoised)")
     s = sub.add_parser("scene", parents=[common], help="render one scene")
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--out", required=True, help="the scene's folder")
@@ -182,7 +189,8 @@ def main(argv=None):
         spp, scene_res, extra = scene_settings(seed, spp_choices, res, res_scales, extra_spp)
         teacher = teacher_spp(a.teacher_spp, spp) or None
         return render_scene(seed, out, frames, scene_res, spp, a.reference_spp, ref_frames, a.half, a.threads,
-                            a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher)
+                            a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher,
+                            cycles_denoise=a.cycles_denoise)
 
     if a.cmd == "scene":
         print(f"wrote {one(a.seed, a.out, a.detail, a.calibration)}")

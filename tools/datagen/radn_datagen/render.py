@@ -15,11 +15,18 @@ from . import LEVELS, REFERENCE
 from .levels import level_spp, sampling_seed
 
 
-def configure(scene, exr_half=False, clamp_indirect=10.0, threads=0):
-    """Cycles on the CPU with radn's passes, no denoising, no adaptive sampling, no motion blur."""
+def configure(scene, exr_half=False, clamp_indirect=10.0, threads=0, cycles_denoise=False):
+    """Cycles on the CPU with radn's passes, no adaptive sampling, no motion blur, and no
+    denoising unless `cycles_denoise`: then Cycles' own OIDN runs (albedo + normal prefiltered
+    to "accurate") and, with the denoising data stored, each file holds the noisy beauty as
+    "Noisy Image" and Cycles' denoised one as "Combined" (radn's `--guide denoised`)."""
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
-    scene.cycles.use_denoising = False
+    scene.cycles.use_denoising = bool(cycles_denoise)
+    if cycles_denoise:
+        scene.cycles.denoiser = "OPENIMAGEDENOISE"
+        scene.cycles.denoising_input_passes = "RGB_ALBEDO_NORMAL"
+        scene.cycles.denoising_prefilter = "ACCURATE"
     scene.cycles.use_adaptive_sampling = False
     scene.cycles.use_animated_seed = False
     scene.cycles.sample_clamp_indirect = clamp_indirect

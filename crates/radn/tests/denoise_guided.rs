@@ -1,0 +1,215 @@
+//! `radn denoise --guide` end to end with a freshly initialised guided model (the plumbing:
+//! where guides come from, that they steer the kernels, bands equal whole frames, AOVs still
+//! sum, results land in every beauty layer, and the errors; not image quality).
+//!
+//! The OIDN tests need Intel Open Image Denoise (`scripts/setup` installs it); without it they
+//! say so and pass, unless `RADN_REQUIRE_OIDN=1` (which `scripts/test` sets).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::{assert_aovs_sum_to_beauty, radn, radn_ok, sample, with_aovs};
+use radn_core::exr_file::ExrFile;
+use radn_nn::burn::tensor::Device;
+use radn_nn::model::config::InputConfig;
+use radn_nn::{Denoiser, NetConfig};
+
+/// The Cycles render with denoising data (Noisy Image + Cycles' denoised Combined).
+fn denoised_sample() -> String {
+    format!(
+        "{}/../../samples/cycles-denoised/low/frame_####.exr",
+        env!("CARGO_MANIFEST_DIR")
+    )
+}
+
+/// A fresh `small` model that reads a guide (with exposure normalisation and the noise
+/// estimate, like the default).
+fn guided_model(dir: &Path) -> PathBuf {
+    let p = dir.join("guided.safetensors");
+    let mut config = NetConfig::preset("small").unwrap();
+    config.inputs = InputConfig {
+        exposure: true,
+        noise: true,
+        guide: true,
+    };
+    radn_nn::model::store::save(&Denoiser::new(config, &Device::flex()), &p).unwrap();
+    p
+}
+
+/// Whether OIDN opens here; panics where `RADN_REQUIRE_OIDN` says it must.
+fn have_oidn() -> bool {
+    match radn_core::guide::OidnDenoiser::new(1) {
+        Ok(_) => true,
+        Err(e) if std::env::var_os("RADN_REQUIRE_OIDN").is_none() => {
+            eprintln!("SKIPPED: Intel Open Image Denoise is not installed here: {e}");
+            false
+        }
+        Err(e) => panic!("RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"),
+    }
+}
+
+fn rgb(f: &ExrFile, layer: &str) -> Vec<f32> {
+    ["R", "G", "B"]
+        .iter()
+        .flat_map(|c| f.channel_f32(&format!("ViewLayer.{layer}.{c}")).unwrap())
+        .collect()
+}
+
+fn worst(a: &[f32], b: &[f32]) -> f32 {
+    a.iter()
+        .zip(b)
+        .map(|(x, y)| (x - y).abs())
+        .fold(0.0, f32::max)
+}
+
+#[test]
+fn the_renderers_denoised_layer_guides_the_noisy_one_and_bands_equal_whole_frames() {
+    let d = tempfile::tempdir().unwrap();
+    let m = guided_model(d.path());
+    let run = |guide: &str, tile: &str| {
+        let out = format!("{}/{guide}-{tile}/f_####.exr", d.path().display());
+        radn_ok(&[
+            "denoise",
+            "--model",
+            m.to_str().unwrap(),
+            "-i",
+            &denoised_sample(),
+            "-o",
+            &out,
+            "--guide",
+            guide,
+            "--tile",
+            tile,
+            "--input-blend",
+            "off",
+        ]);
+        ExrFile::read(out.replace("####", "0002")).unwrap()
+    };
+    let whole = run("denoised", "0");
+    let banded = run("denoised", "16");
+    let src = ExrFile::read(denoised_sample().replace("####", "0002")).unwrap();
+    let result = rgb(&whole, "Noisy Image");
+    // the result replaces the noisy beauty and Cycles' own denoised beauty alike
+    assert_eq!(result, rgb(&whole, "Combined"));
+    assert!(
+        worst(&result, &rgb(&src, "Noisy Image")) > 1e-3,
+        "not denoised"
+    );
+    assert!(worst(&result, &rgb(&src, "Combined")) > 1e-3);
+    // bands of 16 rows (each with the guide's rows of its window) equal whole frames
+    let diff = worst(&result, &rgb(&banded, "Noisy Image"));
+    assert!(diff < 1e-5, "banded vs whole: {diff}");
+    // the guide steers the weights: the same frames guided by a named layer holding the same
+    // values give the same result, a different guide another one
+    let named = run("Combined", "0");
+    assert_eq!(rgb(&named, "Noisy Image"), result);
+    if have_oidn() {
+        let other = run("oidn", "0");
+        assert!(worst(&rgb(&other, "Noisy Image"), &result) > 1e-4);
+    }
+}
+
+#[test]
+fn guided_kernels_keep_aovs_summing_to_the_beauty() {
+    if !have_oidn() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let m = guided_model(d.path());
+    let input = with_aovs(d.path(), 0.25);
+    for tile in ["0", "40"] {
+        let out = format!("{}/out{tile}/f_####.exr", d.path().display());
+        radn_ok(&[
+            "denoise",
+            "--model",
+            m.to_str().unwrap(),
+            "-i",
+            &input,
+            "-o",
+            &out,
+            "--frames",
+            "4-5",
+            "--aovs",
+            "diffuse,specular",
+            "--guide",
+            "oidn",
+            "--oidn-threads",
+            "2",
+            "--tile",
+            tile,
+        ]);
+        let r = ExrFile::read(out.replace("####", "0005")).unwrap();
+        let src = ExrFile::read(d.path().join("in/frame_0005.exr")).unwrap();
+        assert_aovs_sum_to_beauty(&r, &src);
+    }
+    let read = |tile: &str| ExrFile::read(d.path().join(format!("out{tile}/f_0005.exr"))).unwrap();
+    let diff = worst(&rgb(&read("0"), "Combined"), &rgb(&read("40"), "Combined"));
+    assert!(diff < 1e-5, "banded vs whole with OIDN guides: {diff}");
+}
+
+#[test]
+fn a_guide_needs_a_guided_model_and_a_guided_model_a_guide() {
+    let d = tempfile::tempdir().unwrap();
+    let input = format!("{}/low/frame_####.exr", sample().display());
+    let out = format!("{}/o/f_####.exr", d.path().display());
+    let fails = |extra: &[&str], needle: &str| {
+        let mut args = vec!["denoise", "-i", &input, "-o", &out, "--frames", "4-4"];
+        args.extend(extra);
+        let r = radn(&args);
+        let err = String::from_utf8_lossy(&r.stderr);
+        assert!(
+            !r.status.success() && err.contains(needle),
+            "{extra:?}: {err}"
+        );
+        assert!(
+            !d.path().join("o/f_0004.exr").exists(),
+            "nothing is written"
+        );
+    };
+    // the shipped default reads no guide
+    fails(&["--guide", "denoised"], "reads no guide");
+    fails(&["--method", "classic", "--guide", "oidn"], "classic");
+    let m = guided_model(d.path());
+    let m = m.to_str().unwrap();
+    fails(&["--model", m], "reads a guide");
+    // the sample has no denoising data: no denoised layer beside its (noisy) Combined
+    fails(
+        &["--model", m, "--guide", "denoised"],
+        "has no denoised beauty",
+    );
+    fails(&["--model", m, "--guide", "Nope"], "guide layer 'Nope'");
+}
+
+#[test]
+fn without_oidn_the_oidn_guide_says_what_to_install_and_writes_nothing() {
+    let d = tempfile::tempdir().unwrap();
+    let m = guided_model(d.path());
+    let out = format!("{}/o/f_####.exr", d.path().display());
+    let r = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args([
+            "denoise",
+            "--model",
+            m.to_str().unwrap(),
+            "-i",
+            &format!("{}/low/frame_####.exr", sample().display()),
+            "-o",
+            &out,
+            "--frames",
+            "4-4",
+            "--guide",
+            "oidn",
+        ])
+        .env("RADN_OIDN_LIBRARY", d.path().join("missing.so"))
+        .output()
+        .unwrap();
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success(), "{err}");
+    for needed in ["Intel Open Image Denoise", "pyoidn==2.5.1.0", "missing.so"] {
+        assert!(err.contains(needed), "'{needed}' missing from: {err}");
+    }
+    assert!(
+        !d.path().join("o").exists() || std::fs::read_dir(d.path().join("o")).unwrap().count() == 0
+    );
+}
