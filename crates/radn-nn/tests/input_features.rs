@@ -107,6 +107,8 @@ fn prepared_tiles_record_the_exposure_inference_uses() {
         seed: 1,
         frames: 5,
         pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
+        guide: Default::default(),
+        oidn_threads: 0,
     };
     prepare(&sample_dir(), d.path(), &opts, |_, _| {}).unwrap();
     let ds = TileDataset::open(d.path()).unwrap();

@@ -17,6 +17,8 @@ fn tiles(out: &Path, seed: u64, per_window: usize) {
         seed,
         frames: 5,
         pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
+        guide: Default::default(),
+        oidn_threads: 0,
     };
     prepare(&sample(), out, &opts, |_, _| {}).unwrap();
 }
@@ -440,6 +442,8 @@ fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
         seed: 1,
         frames: 5,
         pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
+        guide: Default::default(),
+        oidn_threads: 0,
     };
     let e = prepare(&data, &out, &opts, |_, _| {})
         .unwrap_err()
@@ -459,4 +463,130 @@ fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
             .all(|n| n.starts_with("shard_") && n.ends_with(".bin")),
         "{names:?}"
     );
+}
+
+/// Guided tile sets of the sample (`radn prepare --guide oidn`): `train` and `val`, one tile
+/// per window. `None` (with a message) where OIDN is not installed and not required.
+fn guided_tile_sets() -> Option<tempfile::TempDir> {
+    if let Err(e) = radn_core::guide::OidnGuides::new(2) {
+        assert!(
+            std::env::var_os("RADN_REQUIRE_OIDN").is_none(),
+            "RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"
+        );
+        eprintln!("SKIPPED: Intel Open Image Denoise is not installed here: {e}");
+        return None;
+    }
+    let d = tempfile::tempdir().unwrap();
+    for (set, seed) in [("train", 1), ("val", 2)] {
+        let opts = PrepareOptions {
+            tile: 32,
+            tiles_per_window: 1,
+            seed,
+            frames: 5,
+            pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
+            guide: radn_core::guide::GuideChoice::Oidn,
+            oidn_threads: 2,
+        };
+        prepare(&sample(), &d.path().join(set), &opts, |_, _| {}).unwrap();
+    }
+    Some(d)
+}
+
+#[test]
+fn guided_tiles_hold_each_renders_own_oidn_guide() {
+    use half::f16;
+    use radn_core::frame::{FrameReader, Requirements};
+    let Some(d) = guided_tile_sets() else { return };
+    let ds = TileDataset::open(&d.path().join("train")).unwrap();
+    assert_eq!(ds.manifest.guide.as_deref(), Some("oidn"));
+    assert_eq!(ds.manifest.format, 3);
+    // record 4 is the window around frame 5; its centre frame is frame index 2 of 5
+    let tile = ds.get(4).unwrap();
+    let (s, n) = (32usize, 32 * 32);
+    let reader = FrameReader::new(
+        radn_core::mapping::ChannelMapping::builtin("cycles").unwrap(),
+        Requirements::DENOISE,
+    );
+    let oidn = radn_core::guide::OidnGuides::new(2).unwrap();
+    for (l, level) in radn_nn::train::dataset::INPUT_LEVELS.iter().enumerate() {
+        let stored = tile.guides[l]
+            .as_ref()
+            .expect("every input level has guides");
+        assert_eq!(stored.len(), 5 * 3 * n);
+        let path = sample().join(format!("{level}/frame_0005.exr"));
+        let frame = reader.read(&path).unwrap().0;
+        let (w, h) = (frame.width(), frame.height());
+        // where the tile was cut: its centre colour matches the frame's there
+        let centre = &tile.values[l][2 * 3 * n..3 * 3 * n];
+        let q = |v: f32| f16::from_f32(v).to_f32();
+        let at = (0..=h - s)
+            .flat_map(|y| (0..=w - s).map(move |x| (x, y)))
+            .find(|&(x0, y0)| {
+                (0..3).all(|c| {
+                    (0..s).all(|y| {
+                        (0..s).all(|x| {
+                            q(frame.color.get(x0 + x, y0 + y, c)) == centre[c * n + y * s + x]
+                        })
+                    })
+                })
+            })
+            .expect("the tile's colour is a crop of the frame");
+        // the centre frame's guide is OIDN of this very render, to half precision
+        let g = oidn.of_file(&reader, &path).unwrap();
+        let mut worst = 0.0f32;
+        for c in 0..3 {
+            for y in 0..s {
+                for x in 0..s {
+                    let want = g.get(at.0 + x, at.1 + y, c);
+                    let got = stored[(2 * 3 + c) * n + y * s + x];
+                    worst = worst.max((want - got).abs() / want.abs().max(1e-2));
+                }
+            }
+        }
+        assert!(worst < 2e-3, "{level}: stored guide vs OIDN: {worst}");
+        // and it is not the noisy colour
+        assert_ne!(&stored[2 * 3 * n..3 * 3 * n], centre);
+    }
+}
+
+#[test]
+fn a_guided_network_trains_on_guided_tiles_and_refuses_tiles_without_guides() {
+    let Some(d) = guided_tile_sets() else { return };
+    let device = Device::flex().autodiff();
+    let mut net = radn_nn::NetConfig::preset("small").unwrap();
+    net.name = "small-guided".into();
+    net.inputs.exposure = true;
+    net.inputs.guide = true;
+    std::fs::write(d.path().join("guided.toml"), net.to_toml()).unwrap();
+    let text = "model = \"guided.toml\"\ntrain = \"train\"\nval = \"val\"\nbatch = 2\nsteps = 3\nlr = 1e-3\nwarmup = 1\nvalidate_every = 3\nval_tiles = 2\nseed = 5\n";
+    let mut t = Trainer::new(
+        TrainConfig::parse(text).unwrap(),
+        d.path(),
+        &d.path().join("run"),
+        false,
+        &device,
+    )
+    .unwrap();
+    assert_eq!(t.denoiser.config.inputs.channels(), 11 + 3);
+    let before = t.validate().unwrap().loss;
+    t.run(|_| {}).unwrap();
+    let after = t.validate().unwrap().loss;
+    assert!(before.is_finite() && after.is_finite() && after != before);
+    let saved =
+        radn_nn::model::store::read_config(&d.path().join("run/model.safetensors")).unwrap();
+    assert!(saved.inputs.guide, "the model file says it reads a guide");
+    // tiles prepared without guides are refused, with what to do
+    tiles(&d.path().join("plain"), 1, 1);
+    let text = text.replace("train = \"train\"", "train = \"plain\"");
+    let e = Trainer::new(
+        TrainConfig::parse(&text).unwrap(),
+        d.path(),
+        &d.path().join("bad"),
+        false,
+        &device,
+    )
+    .err()
+    .expect("unguided tiles were accepted")
+    .to_string();
+    assert!(e.contains("plain") && e.contains("--guide oidn"), "{e}");
 }

@@ -1,11 +1,14 @@
 //! Options shared by every command that reads frames: preset, mapping file, view layer,
-//! NaN/Inf policy, turned into the frame reader they describe.
+//! NaN/Inf policy, turned into the frame reader they describe; and where a guided network's
+//! guides come from.
 
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
 use radn_core::exr_file::ExrFile;
 use radn_core::frame::{FrameReader, Requirements};
+use radn_core::guide::{GuideChoice, OidnGuides};
 use radn_core::hygiene::NonFinitePolicy;
 use radn_core::mapping::ChannelMapping;
 
@@ -68,4 +71,73 @@ impl ChannelArgs {
         };
         Ok(r)
     }
+}
+
+/// Where a guided network's per-frame guide comes from.
+#[derive(clap::Args, Clone, Debug)]
+pub struct GuideArgs {
+    /// Network: a per-frame spatial estimate of the beauty that a guided model reads beside
+    /// the noisy window (kernels are still applied to the noisy frames): `oidn` (Intel Open
+    /// Image Denoise on each frame, HDR, prefiltered albedo and normal), `denoised` (the
+    /// renderer's own denoised beauty beside the noisy one, e.g. Cycles' Combined with Noisy
+    /// Image), a layer name, or `none`.
+    #[arg(long, value_name = "oidn|denoised|LAYER|none", default_value = "none",
+          value_parser = parse_guide)]
+    pub guide: GuideChoice,
+    /// Threads Intel Open Image Denoise uses for `--guide oidn` (0: every core).
+    #[arg(long, default_value_t = 0)]
+    pub oidn_threads: usize,
+}
+
+impl GuideArgs {
+    /// Sets `reader` to read the guide layer, if the guide is one, and opens Intel Open Image
+    /// Denoise, if the guide is its.
+    pub fn apply(&self, reader: &mut FrameReader) -> Result<Option<Arc<OidnGuides>>> {
+        reader.guide = self.guide.layer();
+        Ok(match self.guide {
+            GuideChoice::Oidn => Some(Arc::new(OidnGuides::new(self.oidn_threads)?)),
+            _ => None,
+        })
+    }
+
+    /// What a [`radn_core::window::WindowReader`] over `paths` needs to attach guides the
+    /// reader does not read: the OIDN guides `oidn` ([`GuideArgs::apply`]) of those files.
+    pub fn window_guides(
+        oidn: Option<Arc<OidnGuides>>,
+        paths: &[PathBuf],
+    ) -> radn_core::guide::JobGuides {
+        match oidn {
+            Some(guides) => radn_core::guide::JobGuides::Oidn {
+                guides,
+                originals: paths.to_vec(),
+            },
+            None => radn_core::guide::JobGuides::FromReader,
+        }
+    }
+
+    /// Checks that `model` (shown as `label`) and the guide go together: a guided model needs
+    /// a guide, and a guide needs a guided model.
+    pub fn check_model(&self, model: &radn_nn::model::Denoiser, label: &Path) -> Result<()> {
+        match (model.config.inputs.guide, self.guide.is_some()) {
+            (true, false) => Err(anyhow!(
+                "{} reads a guide: give one with --guide oidn, --guide denoised or --guide LAYER",
+                label.display()
+            )),
+            (false, true) => Err(anyhow!(
+                "{} reads no guide, so --guide {} would change nothing: drop --guide or pass a \
+                 guided model with --model",
+                label.display(),
+                match &self.guide {
+                    GuideChoice::Layer(l) => l.as_str(),
+                    GuideChoice::Oidn => "oidn",
+                    _ => "denoised",
+                }
+            )),
+            _ => Ok(()),
+        }
+    }
+}
+
+fn parse_guide(s: &str) -> Result<GuideChoice, String> {
+    Ok(GuideChoice::parse(s))
 }

@@ -5,9 +5,11 @@
 //! One record holds a header (flags; from format 2 on, each input level's exposure), then, for
 //! each input level (`high`, `half`, `low`), the window's base network features
 //! `[T, INPUT_CHANNELS, S, S]` and linear colour `[T, 3, S, S]`, then the centre frame's colour
-//! `[3, S, S]` for each target level (`high`, `half`, `low`, `pseudo`). What a network reads
-//! beyond the base features is derived from these at training time
-//! ([`crate::infer::input::network_features`]).
+//! `[3, S, S]` for each target level (`high`, `half`, `low`, `pseudo`). Tile sets prepared
+//! with a guide (format 3, [`Manifest::guide`]) also hold, after each input level's colour,
+//! that level's warped guide `[T, 3, S, S]` (Intel Open Image Denoise of that very render, or
+//! the renderer's denoised layer). What a network reads beyond the base features is derived
+//! from these at training time ([`crate::infer::input::network_features`]).
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -16,6 +18,7 @@ use std::path::{Path, PathBuf};
 use half::f16;
 use radn_core::align::AlignParams;
 use radn_core::frame::{FrameReader, Requirements};
+use radn_core::guide::{GuideChoice, JobGuides, OidnGuides};
 use radn_core::mapping::ChannelMapping;
 use radn_core::sequence::{scene_folders, SequencePattern};
 use radn_core::window::WindowReader;
@@ -30,8 +33,9 @@ pub const INPUT_LEVELS: [&str; 3] = ["high", "half", "low"];
 /// Levels a target can come from, least noisy last: the pseudo-reference is the cleanest.
 pub const TARGET_LEVELS: [&str; 4] = ["high", "half", "low", "pseudo"];
 const RECORDS_PER_SHARD: usize = 64;
-/// The tile format `prepare` writes: 2 adds each input level's exposure to the header.
-pub const TILE_FORMAT: u32 = 2;
+/// The tile format `prepare` writes: 2 adds each input level's exposure to the header, 3 the
+/// input levels' guides (in tile sets prepared with one).
+pub const TILE_FORMAT: u32 = 3;
 
 /// Header bytes of a record: flags (4) and, from format 2, one f32 exposure per input level.
 fn header_bytes(format: u32) -> usize {
@@ -57,6 +61,10 @@ pub struct PrepareOptions {
     /// denoiser, `radn pseudoref`) or `oidn` (the teacher render denoised by OIDN, datagen's
     /// `--teacher-spp`).
     pub pseudo_level: String,
+    /// Each input frame's guide, stored for guided networks (none: no guide is stored).
+    pub guide: GuideChoice,
+    /// Threads of Intel Open Image Denoise, for `guide` `oidn` (0: every core).
+    pub oidn_threads: usize,
 }
 
 /// The default pseudo-reference level (made by `radn pseudoref`).
@@ -96,6 +104,10 @@ pub struct Manifest {
     /// The level folder the pseudo-references were read from (`pseudo` or `oidn`).
     #[serde(default = "default_pseudo_level")]
     pub pseudo_level: String,
+    /// Where the stored guides came from (`oidn`, `denoised` or a layer name); none in tile sets
+    /// without guides (all before format 3).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide: Option<String>,
 }
 
 /// One training tile.
@@ -110,11 +122,14 @@ pub struct Tile {
     /// Per input level: the centre frame's exposure ([`FeatureScales::exposure`]); None in
     /// tiles of format 1, prepared before it was recorded.
     pub exposure: Vec<Option<f32>>,
+    /// Per input level: the warped guide `[T, 3, S, S]`, in tile sets prepared with one.
+    pub guides: Vec<Option<Vec<f32>>>,
 }
 
-fn record_bytes(tile: usize, frames: usize, format: u32) -> usize {
+fn record_bytes(tile: usize, frames: usize, format: u32, guided: bool) -> usize {
     let s2 = tile * tile;
-    let inputs = INPUT_LEVELS.len() * frames * (INPUT_CHANNELS + 3) * s2;
+    let per_frame = INPUT_CHANNELS + 3 + 3 * usize::from(guided);
+    let inputs = INPUT_LEVELS.len() * frames * per_frame * s2;
     let targets = TARGET_LEVELS.len() * 3 * s2;
     header_bytes(format) + 2 * (inputs + targets)
 }
@@ -150,7 +165,12 @@ pub fn prepare(
     let scenes = scene_folders(data, "high")?;
     std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
     clear_tile_folder(out)?;
-    let rb = record_bytes(opts.tile, opts.frames, TILE_FORMAT);
+    let guided = opts.guide.is_some();
+    let rb = record_bytes(opts.tile, opts.frames, TILE_FORMAT, guided);
+    let oidn = match opts.guide {
+        GuideChoice::Oidn => Some(std::sync::Arc::new(OidnGuides::new(opts.oidn_threads)?)),
+        _ => None,
+    };
     let mut writer = ShardWriter::new(out, rb);
     let mut with_pseudo = 0;
     let total: usize = scenes.len();
@@ -166,7 +186,8 @@ pub fn prepare(
             Ok(Some(numbers.iter().map(|&f| p.path(f)).collect()))
         };
         let mapping = ChannelMapping::builtin("cycles").expect("built-in preset");
-        let input_reader = FrameReader::new(mapping.clone(), Requirements::DENOISE);
+        let mut input_reader = FrameReader::new(mapping.clone(), Requirements::DENOISE);
+        input_reader.guide = opts.guide.layer();
         let pseudo_reader = FrameReader::new(mapping, Requirements::COLOR_ONLY);
         let mut input_files: Vec<Vec<PathBuf>> = Vec::new();
         for level in INPUT_LEVELS {
@@ -180,18 +201,32 @@ pub fn prepare(
         let pseudo = level_files(&opts.pseudo_level)?;
         let mut inputs: Vec<WindowReader> = input_files
             .iter()
-            .map(|f| WindowReader::new(&input_reader, f, opts.frames / 2))
+            .map(|f| {
+                let w = WindowReader::new(&input_reader, f, opts.frames / 2);
+                match &oidn {
+                    // each input render's own OIDN result
+                    Some(g) => w.with_guides(JobGuides::Oidn {
+                        guides: g.clone(),
+                        originals: f.clone(),
+                    }),
+                    None => w,
+                }
+            })
             .collect();
         let mut size: Option<(usize, usize)> = None;
         for (k, _) in numbers.iter().enumerate() {
             let mut feats = Vec::new();
             let mut vals = Vec::new();
             let mut exposures = Vec::new();
+            let mut guides = Vec::new();
             for level in inputs.iter_mut() {
                 let win = level.aligned(k, &AlignParams::default())?;
                 feats.push(features(&win));
                 vals.push(color_values(&win));
                 exposures.push(FeatureScales::of(&win).exposure);
+                if guided {
+                    guides.push(guide_values(&win));
+                }
             }
             let (w, h) = *size.get_or_insert_with(|| {
                 let c = inputs[0].frame(k);
@@ -217,7 +252,14 @@ pub fn prepare(
                 SplitMix(opts.seed ^ ((si as u64) << 32) ^ (k as u64).wrapping_mul(0x9E37_79B9));
             for _ in 0..opts.tiles_per_window {
                 let (x0, y0) = (rng.below(w - opts.tile + 1), rng.below(h - opts.tile + 1));
-                let record = encode(opts, (w, h), (x0, y0), &exposures, &feats, &vals, &targets);
+                let record = encode(
+                    opts,
+                    (w, h),
+                    (x0, y0),
+                    &exposures,
+                    (&feats, &vals, &guides),
+                    &targets,
+                );
                 writer.write(&record)?;
                 if targets[3].is_some() {
                     with_pseudo += 1;
@@ -248,6 +290,12 @@ pub fn prepare(
             .collect(),
         with_pseudo,
         pseudo_level: opts.pseudo_level.clone(),
+        guide: match &opts.guide {
+            GuideChoice::None => None,
+            GuideChoice::Oidn => Some("oidn".into()),
+            GuideChoice::Denoised => Some("denoised".into()),
+            GuideChoice::Layer(l) => Some(l.clone()),
+        },
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;
@@ -261,18 +309,34 @@ fn io_err(p: &Path, e: std::io::Error) -> NnError {
     }
 }
 
-/// One record: the tile at `(x0, y0)` of `w × h` frames.
+/// Every frame's warped guide, `[T, 3, H, W]`.
+fn guide_values(win: &radn_core::align::AlignedWindow) -> Vec<f32> {
+    win.frames
+        .iter()
+        .flat_map(|f| {
+            f.guide
+                .as_ref()
+                .expect("a guided tile set's frames carry guides")
+                .data()
+                .iter()
+                .copied()
+        })
+        .collect()
+}
+
+/// One record: the tile at `(x0, y0)` of `w × h` frames; per input level its features,
+/// colour and (where the set stores them) guides.
 fn encode(
     opts: &PrepareOptions,
     (w, h): (usize, usize),
     (x0, y0): (usize, usize),
     exposures: &[f32],
-    feats: &[Vec<f32>],
-    vals: &[Vec<f32>],
+    (feats, vals, guides): (&[Vec<f32>], &[Vec<f32>], &[Vec<f32>]),
     targets: &[Option<&[f32]>],
 ) -> Vec<u8> {
     let s = opts.tile;
-    let mut out = Vec::with_capacity(record_bytes(s, opts.frames, TILE_FORMAT));
+    let guided = opts.guide.is_some();
+    let mut out = Vec::with_capacity(record_bytes(s, opts.frames, TILE_FORMAT, guided));
     let flags: u32 = if targets[3].is_some() { 1 } else { 0 };
     out.extend_from_slice(&flags.to_le_bytes());
     for e in exposures {
@@ -289,9 +353,12 @@ fn encode(
             }
         }
     };
-    for (f, v) in feats.iter().zip(vals) {
+    for (i, (f, v)) in feats.iter().zip(vals).enumerate() {
         crop(f, opts.frames * INPUT_CHANNELS);
         crop(v, opts.frames * 3);
+        if guided {
+            crop(&guides[i], opts.frames * 3);
+        }
     }
     for t in targets {
         match t {
@@ -407,8 +474,14 @@ impl TileDataset {
             serde_json::from_str(&text).map_err(|e| err(format!("bad manifest.json ({e})")))?;
         if manifest.feature_channels != INPUT_CHANNELS
             || manifest.format > TILE_FORMAT
+            || (manifest.guide.is_some() && manifest.format < 3)
             || manifest.record_bytes
-                != record_bytes(manifest.tile, manifest.frames, manifest.format)
+                != record_bytes(
+                    manifest.tile,
+                    manifest.frames,
+                    manifest.format,
+                    manifest.guide.is_some(),
+                )
         {
             return Err(err(
                 "the manifest does not match this version of radn's tile layout".into(),
@@ -467,9 +540,11 @@ impl TileDataset {
         let s2 = m.tile * m.tile;
         let mut features = Vec::new();
         let mut values = Vec::new();
+        let mut guides = Vec::new();
         for _ in 0..m.input_levels.len() {
             features.push(take(m.frames * m.feature_channels * s2));
             values.push(take(m.frames * 3 * s2));
+            guides.push(m.guide.is_some().then(|| take(m.frames * 3 * s2)));
         }
         let mut targets = Vec::new();
         for (k, _) in m.target_levels.iter().enumerate() {
@@ -485,6 +560,7 @@ impl TileDataset {
             values,
             targets,
             exposure,
+            guides,
         })
     }
 }

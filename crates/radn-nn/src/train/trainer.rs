@@ -256,6 +256,14 @@ pub fn make_batch(
         );
         let mut colour = Vec::with_capacity(frames * 3 * crop * crop);
         cut(&tl.values[*input], frames * 3, *x0, *y0, &mut colour);
+        let guide = inputs.guide.then(|| {
+            let mut g = Vec::with_capacity(frames * 3 * crop * crop);
+            let stored = tl.guides[*input]
+                .as_ref()
+                .expect("a guided network trains on guided tiles (checked by Trainer::new)");
+            cut(stored, frames * 3, *x0, *y0, &mut g);
+            g
+        });
         let exposure = match tl.exposure[*input] {
             Some(e) => e,
             None if inputs.exposure => panic!("exposure normalisation needs format-2 tiles"),
@@ -264,7 +272,7 @@ pub fn make_batch(
         f.extend(network_features(
             base,
             &colour,
-            None,
+            guide.as_deref(),
             frames,
             crop * crop,
             inputs,
@@ -375,6 +383,19 @@ impl Trainer {
                         path: base.join(name),
                         detail: "they were prepared before exposures were recorded; \
                                  the network normalises by exposure: run `radn prepare` again"
+                            .into(),
+                    });
+                }
+            }
+        }
+        if net_cfg.inputs.guide {
+            for (name, set) in [(&config.train, &train), (&config.val, &val)] {
+                if set.manifest.guide.is_none() {
+                    return Err(NnError::Tiles {
+                        path: base.join(name),
+                        detail: "they hold no guides and the network reads one: prepare them \
+                                 with `radn prepare --guide oidn` (or the guide the model is \
+                                 to be used with)"
                             .into(),
                     });
                 }

@@ -1,18 +1,16 @@
 //! `radn denoise`: denoise an EXR sequence.
 
-use std::path::{Path, PathBuf};
-use std::sync::Arc;
+use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
 use radn_core::classic::pipeline::{ClassicDenoiser, ClassicParams};
 use radn_core::denoiser::WindowDenoiser;
-use radn_core::frame::{FrameReader, Requirements};
-use radn_core::guide::{GuideChoice, OidnGuides};
+use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
 use radn_core::sequence::{sequence_files, SequencePattern};
 use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
 
-use crate::input::ChannelArgs;
+use crate::input::{ChannelArgs, GuideArgs};
 
 /// Denoising methods.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -107,60 +105,6 @@ pub struct Args {
     pub classic: ClassicArgs,
     #[command(flatten)]
     pub channels: ChannelArgs,
-}
-
-/// Where a guided network's per-frame guide comes from.
-#[derive(clap::Args, Clone, Debug)]
-pub struct GuideArgs {
-    /// Network: a per-frame spatial estimate of the beauty that a guided model reads beside
-    /// the noisy window (kernels are still applied to the noisy frames): `oidn` (Intel Open
-    /// Image Denoise on each frame, HDR, prefiltered albedo and normal), `denoised` (the
-    /// renderer's own denoised beauty beside the noisy one, e.g. Cycles' Combined with Noisy
-    /// Image), a layer name, or `none`.
-    #[arg(long, value_name = "oidn|denoised|LAYER|none", default_value = "none",
-          value_parser = parse_guide)]
-    pub guide: GuideChoice,
-    /// Threads Intel Open Image Denoise uses for `--guide oidn` (0: every core).
-    #[arg(long, default_value_t = 0)]
-    pub oidn_threads: usize,
-}
-
-impl GuideArgs {
-    /// Sets `reader` to read the guide layer, if the guide is one, and opens Intel Open Image
-    /// Denoise, if the guide is its.
-    pub fn apply(&self, reader: &mut FrameReader) -> Result<Option<Arc<OidnGuides>>> {
-        reader.guide = self.guide.layer();
-        Ok(match self.guide {
-            GuideChoice::Oidn => Some(Arc::new(OidnGuides::new(self.oidn_threads)?)),
-            _ => None,
-        })
-    }
-
-    /// Checks that `model` (shown as `label`) and the guide go together: a guided model needs
-    /// a guide, and a guide needs a guided model.
-    pub fn check_model(&self, model: &radn_nn::model::Denoiser, label: &Path) -> Result<()> {
-        match (model.config.inputs.guide, self.guide.is_some()) {
-            (true, false) => Err(anyhow!(
-                "{} reads a guide: give one with --guide oidn, --guide denoised or --guide LAYER",
-                label.display()
-            )),
-            (false, true) => Err(anyhow!(
-                "{} reads no guide, so --guide {} would change nothing: drop --guide or pass a \
-                 guided model with --model",
-                label.display(),
-                match &self.guide {
-                    GuideChoice::Layer(l) => l.as_str(),
-                    GuideChoice::Oidn => "oidn",
-                    _ => "denoised",
-                }
-            )),
-            _ => Ok(()),
-        }
-    }
-}
-
-fn parse_guide(s: &str) -> Result<GuideChoice, String> {
-    Ok(GuideChoice::parse(s))
 }
 
 /// Options of the classic (non-neural) denoiser.

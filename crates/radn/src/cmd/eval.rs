@@ -15,7 +15,7 @@ use radn_core::Plane;
 use radn_nn::infer::utilization::{write_heatmap, Utilization};
 use radn_nn::infer::NetworkDenoiser;
 
-use crate::input::ChannelArgs;
+use crate::input::{ChannelArgs, GuideArgs};
 
 /// Arguments of `radn eval`.
 #[derive(clap::Args)]
@@ -54,6 +54,9 @@ pub struct Args {
     /// Only these frames (first-last[xstep]).
     #[arg(long)]
     pub frames: Option<String>,
+    /// For --utilization and --html heat maps of a guided model: where its guides come from.
+    #[command(flatten)]
+    pub guide: GuideArgs,
     /// Write per-frame and mean metrics as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -171,10 +174,15 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
         .position(|(f, _)| *f == display)
         .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
     let device = radn_nn::burn::tensor::Device::flex();
-    let net = NetworkDenoiser::new(crate::model::load(a.model.as_deref(), &device)?, device);
-    let reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
+    let d = crate::model::load(a.model.as_deref(), &device)?;
+    a.guide
+        .check_model(&d, &crate::model::label(a.model.as_deref()))?;
+    let net = NetworkDenoiser::new(d, device);
+    let mut reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
+    let oidn = a.guide.apply(&mut reader)?;
     let paths: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
-    let mut windows = WindowReader::new(&reader, &paths, net.radius());
+    let mut windows = WindowReader::new(&reader, &paths, net.radius())
+        .with_guides(GuideArgs::window_guides(oidn, &paths));
     Ok(net.utilization(&windows.aligned(pos, &net.align)?))
 }
 
@@ -185,11 +193,15 @@ fn utilization(a: &Args) -> Result<()> {
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
     let device = radn_nn::burn::tensor::Device::flex();
-    let net = NetworkDenoiser::new(crate::model::load(a.model.as_deref(), &device)?, device);
+    let d = crate::model::load(a.model.as_deref(), &device)?;
     let model = crate::model::label(a.model.as_deref());
-    let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
+    a.guide.check_model(&d, &model)?;
+    let net = NetworkDenoiser::new(d, device);
+    let mut reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
+    let oidn = a.guide.apply(&mut reader)?;
     let paths: Vec<PathBuf> = files.iter().map(|(_, p)| p.clone()).collect();
-    let mut windows = WindowReader::new(&reader, &paths, net.radius());
+    let mut windows = WindowReader::new(&reader, &paths, net.radius())
+        .with_guides(GuideArgs::window_guides(oidn, &paths));
     let mut stats = Utilization::new(2 * net.radius() + 1);
     let pb = crate::progress::frames(files.len() as u64, "utilisation");
     for (pos, (number, _)) in files.iter().enumerate() {

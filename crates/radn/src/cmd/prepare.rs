@@ -28,6 +28,10 @@ pub struct Args {
     /// or `oidn` (the datagen teacher render denoised by Intel Open Image Denoise).
     #[arg(long, default_value = radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL)]
     pub pseudo: String,
+    /// Also store each input frame's guide, for training a guided network (`oidn`: Intel
+    /// Open Image Denoise of that very render; `denoised` or a layer: read from the files).
+    #[command(flatten)]
+    pub guide: crate::input::GuideArgs,
 }
 
 /// Cuts the tiles.
@@ -40,19 +44,24 @@ pub fn run(a: Args) -> Result<()> {
         seed: a.seed,
         frames: 5,
         pseudo_level: a.pseudo.clone(),
+        guide: a.guide.guide.clone(),
+        oidn_threads: a.guide.oidn_threads,
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {
         pb.set_position(done as u64)
     })?;
     pb.finish_and_clear();
     println!(
-        "{} tiles of {}x{} from {} scenes ({} with a pseudo-reference from '{}/') -> {}",
+        "{} tiles of {}x{} from {} scenes ({} with a pseudo-reference from '{}/'{}) -> {}",
         m.records,
         m.tile,
         m.tile,
         m.scenes.len(),
         m.with_pseudo,
         m.pseudo_level,
+        m.guide
+            .as_ref()
+            .map_or(String::new(), |g| format!(", guides: {g}")),
         a.out.display()
     );
     Ok(())
