@@ -184,3 +184,22 @@ def test_oidn_prefiltering_denoises_the_auxiliaries_and_beats_the_noisy_aux_mode
     assert err["prefiltered"] < 0.95 * err["noisy-aux"], err
     with pytest.raises(ValueError, match="unknown OIDN mode"):
         OidnDenoiser(mode="clean")
+
+
+def test_cycles_denoise_writes_the_noisy_beauty_beside_cycles_denoised_one(tmp_path):
+    """--cycles-denoise: Combined is Cycles' own OIDN result and the noisy beauty is kept as
+    Noisy Image (radn's --guide denoised reads the one as the guide of the other)."""
+    out = tmp_path / "cd"
+    cmd = [sys.executable, "-m", "radn_datagen", "scene", "--seed", "7", "--out", str(out), "--frames", "1-1",
+           "--res", "64x48", "--levels", "low", "--cycles-denoise"]
+    subprocess.run(cmd, cwd=DATAGEN, check=True, capture_output=True)
+    ch = channels(out / "low" / "frame_0001.exr")
+    noisy = np.stack([ch[f"ViewLayer.Noisy Image.{c}"] for c in "RGB"], -1)
+    denoised = rgb(ch)
+    # neighbouring pixels differ far less in Cycles' denoised beauty than in the 4-spp one
+    rough = lambda im: np.abs(np.diff(im, axis=1)).mean()
+    assert rough(noisy) > 2 * rough(denoised), (rough(noisy), rough(denoised))
+    # the same image underneath: means agree within a few percent
+    assert abs(noisy.mean() - denoised.mean()) < 0.05 * noisy.mean()
+    m = json.load(open(out / "manifest.json"))
+    assert "Noisy Image" in m["passes"] and m["cycles_denoising"] != "off"
