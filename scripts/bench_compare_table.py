@@ -6,7 +6,7 @@ import sys
 from collections import OrderedDict
 
 LEVELS = ["low", "half", "high", "spp0064", "spp0128"]
-METHODS = ["noisy", "classic", "oidn", "tkpcn", "previous default", "radn", "radn, 2 passes"]
+METHODS = ["noisy", "classic", "oidn", "oidn, noisy aux", "tkpcn", "previous default", "radn", "radn, 2 passes", "guided"]
 
 
 def main():

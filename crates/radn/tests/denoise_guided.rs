@@ -27,13 +27,21 @@ fn denoised_sample() -> String {
 /// A fresh `small` model that reads a guide (with exposure normalisation and the noise
 /// estimate, like the default).
 fn guided_model(dir: &Path) -> PathBuf {
-    let p = dir.join("guided.safetensors");
+    guided_model_with(dir, false, 1)
+}
+
+/// A fresh guided `small` model, with the guide blend when `blend`, with `scales` kernel
+/// scales.
+fn guided_model_with(dir: &Path, blend: bool, scales: usize) -> PathBuf {
+    let p = dir.join(format!("guided-{blend}-{scales}.safetensors"));
     let mut config = NetConfig::preset("small").unwrap();
     config.inputs = InputConfig {
         exposure: true,
         noise: true,
         guide: true,
     };
+    config.guide_blend = blend;
+    config.kernel_scales = (scales > 1).then_some(scales);
     radn_nn::model::store::save(&Denoiser::new(config, &Device::flex()), &p).unwrap();
     p
 }
@@ -116,8 +124,14 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
     if !have_oidn() {
         return;
     }
+    for (blend, scales) in [(false, 1), (true, 1), (true, 3)] {
+        guided_aovs_sum_and_bands_equal_whole(blend, scales);
+    }
+}
+
+fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize) {
     let d = tempfile::tempdir().unwrap();
-    let m = guided_model(d.path());
+    let m = guided_model_with(d.path(), blend, scales);
     let input = with_aovs(d.path(), 0.25);
     for tile in ["0", "40"] {
         let out = format!("{}/out{tile}/f_####.exr", d.path().display());
@@ -146,7 +160,10 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
     }
     let read = |tile: &str| ExrFile::read(d.path().join(format!("out{tile}/f_0005.exr"))).unwrap();
     let diff = worst(&rgb(&read("0"), "Combined"), &rgb(&read("40"), "Combined"));
-    assert!(diff < 1e-5, "banded vs whole with OIDN guides: {diff}");
+    assert!(
+        diff < 1e-5,
+        "banded vs whole with OIDN guides (blend {blend}, {scales} scales): {diff}"
+    );
 }
 
 #[test]

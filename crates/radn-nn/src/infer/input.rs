@@ -373,6 +373,7 @@ mod tests {
         let four = network_features(
             base[INPUT_CHANNELS * n..].to_vec(),
             &colour[3 * n..],
+            None,
             4,
             n,
             &BOTH,
@@ -430,5 +431,35 @@ mod tests {
         assert!((key(&win_colour(8.0)) - 8.0 * e).abs() < 1e-5 * e);
         // black frames have exposure 1
         assert_eq!(key(&win_colour(0.0)), 1.0);
+    }
+
+    #[test]
+    fn the_guide_follows_the_other_features_transformed_as_the_colour() {
+        let n = 6;
+        let (base, colour) = window(5, n, 1.0, 0.2, 1.0, |_| 1.0);
+        let guide: Vec<f32> = (0..5 * 3 * n).map(|i| 0.1 * i as f32).collect();
+        let guided = InputConfig {
+            guide: true,
+            ..BOTH
+        };
+        let exposure = 0.5;
+        let out = network_features(base.clone(), &colour, Some(&guide), 5, n, &guided, exposure);
+        let c = guided.channels();
+        assert_eq!(c, 15);
+        let plain = network_features(base, &colour, None, 5, n, &BOTH, exposure);
+        for k in 0..5 {
+            // the other features are untouched, the guide comes last
+            assert_eq!(
+                &out[k * c * n..(k * c + 12) * n],
+                &plain[k * 12 * n..(k + 1) * 12 * n]
+            );
+            for ch in 0..3 {
+                for p in 0..n {
+                    let g = guide[(k * 3 + ch) * n + p];
+                    let got = out[(k * c + 12 + ch) * n + p];
+                    assert!((got - (g / exposure).ln_1p()).abs() < 1e-6);
+                }
+            }
+        }
     }
 }

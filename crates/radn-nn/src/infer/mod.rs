@@ -23,6 +23,7 @@ use radn_core::Plane;
 use crate::infer::input::{network_input, FeatureScales, Region};
 use crate::infer::input_blend::InputBlend;
 use crate::model::demod::{filter, Demodulation};
+use crate::model::guide_blend::GuideBlend;
 use crate::model::Denoiser;
 use crate::profile::{self, timed, Stage};
 
@@ -160,8 +161,13 @@ impl NetworkDenoiser {
             at += n;
         }
         let eps = self.denoiser.config.demodulate;
-        self.run_tiled(win, scales, rows, values, chans, |p, v, x| {
+        let inputs = &self.denoiser.config.inputs;
+        self.run_tiled(win, scales, rows, values, chans, |p, beta, v, x| {
             let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
+            let v = match beta {
+                Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
+                None => v,
+            };
             filter(p, v, demod.as_ref())
         })
     }
@@ -174,7 +180,7 @@ impl NetworkDenoiser {
         let t = win.frames.len();
         let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
         let h = win.centre().color.height();
-        let mass = self.run_tiled(win, FeatureScales::of(win), 0..h, zeros, 1, |p, _, _| {
+        let mass = self.run_tiled(win, FeatureScales::of(win), 0..h, zeros, 1, |p, _, _, _| {
             p.frame_mass(t)
         });
         (0..t).map(|k| mass.select_channels(k, 1)).collect()
@@ -182,7 +188,7 @@ impl NetworkDenoiser {
 
     /// Runs the network tile by tile over rows `rows` (each tile with a halo of the receptive
     /// field, clamped to the window, so the result does not depend on the tiling) and assembles
-    /// the planes of `f(prediction, values, features)`, `values` being `[B, T, chans, h, w]`
+    /// the planes of `f(prediction, guide-blend weights, values, features)`, `values` being `[B, T, chans, h, w]`
     /// from `values(region)` and `features` the network input of the regions. Consecutive tiles
     /// whose regions have the same size share one network call, up to `batch` of them. Features
     /// and values exist for one call's tiles at a time, never for the whole frame.
@@ -193,7 +199,7 @@ impl NetworkDenoiser {
         rows: Range<usize>,
         values: impl Fn(Region) -> Vec<f32>,
         chans: usize,
-        f: impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
+        f: impl Fn(&crate::model::Prediction, Option<Tensor<5>>, Tensor<5>, &Tensor<5>) -> Tensor<4>,
     ) -> Plane {
         let w = win.centre().color.width();
         let tiles = self.tiles(win, rows.clone());
@@ -251,7 +257,7 @@ impl NetworkDenoiser {
         group: &[Tile],
         values: &impl Fn(Region) -> Vec<f32>,
         chans: usize,
-        f: &impl Fn(&crate::model::Prediction, Tensor<5>, &Tensor<5>) -> Tensor<4>,
+        f: &impl Fn(&crate::model::Prediction, Option<Tensor<5>>, Tensor<5>, &Tensor<5>) -> Tensor<4>,
         out: &mut Option<Plane>,
         w: usize,
         rows: &Range<usize>,
@@ -278,8 +284,8 @@ impl NetworkDenoiser {
             &self.device,
         );
         let v = Tensor::<5>::from_data(TensorData::new(vals, [b, t, chans, rh, rw]), &self.device);
-        let prediction = self.denoiser.predict(x.clone(), self.threshold);
-        let res = timed(Stage::Kernels, || f(&prediction, v, &x));
+        let (prediction, beta) = self.denoiser.predict_guided(x.clone(), self.threshold);
+        let res = timed(Stage::Kernels, || f(&prediction, beta, v, &x));
         let oc = res.dims()[1];
         let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
         let out = out.get_or_insert_with(|| Plane::zeros(w, rows.len(), oc));

@@ -98,6 +98,15 @@ pub struct NetConfig {
     /// ([`crate::model::multiscale`]). `None` or 1: one full-resolution kernel per pixel.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kernel_scales: Option<usize>,
+    /// Guide blend (issue 19, needs `inputs.guide`): a per-frame head predicts `β ∈ (0, 1)` at
+    /// every pixel of every window frame, and the kernels filter `(1 − β)·x + β·g` — the noisy
+    /// frame `x` moved toward its guide `g` — instead of `x` alone, so the kernels average the
+    /// guides of the aligned frames where the network trusts them (a learned temporal filter
+    /// over OIDN's frames) and the noisy frames elsewhere. Applied as a per-pixel gain
+    /// `1 − β + β·g / max(x, ε)` on every RGB group, it keeps AOVs summing to the beauty
+    /// ([`crate::model::guide_blend`]); alpha is not blended. Off: the guide is an input only.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub guide_blend: bool,
     /// Optional input features beyond the base ones ([`INPUT_CHANNELS`]): exposure
     /// normalisation and a per-pixel noise estimate. Absent in models from before them.
     #[serde(default, skip_serializing_if = "InputConfig::is_base")]
@@ -246,6 +255,9 @@ impl NetConfig {
             if n > 1 && self.arch != Arch::Ra {
                 return bad("only arch = \"ra\" has multi-scale kernels".into());
             }
+        }
+        if self.guide_blend && !(self.inputs.guide && self.arch == Arch::Ra) {
+            return bad("guide_blend needs arch = \"ra\" and [inputs] guide = true".into());
         }
         if let Some(eps) = self.demodulate {
             if !(eps.is_finite() && eps > 0.0) {

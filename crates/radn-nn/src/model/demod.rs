@@ -50,23 +50,7 @@ impl Demodulation {
     /// The factor over all value channels `[B, T, channels, H, W]` (1 outside the RGB groups).
     fn full_factor(&self, frames: std::ops::Range<usize>) -> Tensor<5> {
         let f = self.factor.clone().narrow(1, frames.start, frames.len());
-        let [b, t, _, h, w] = f.dims();
-        let ones = |n: usize| Tensor::<5>::ones([b, t, n, h, w], &f.device());
-        let mut parts = Vec::new();
-        let mut at = 0;
-        let mut groups = self.rgb.clone();
-        groups.sort_unstable();
-        for o in groups {
-            if o > at {
-                parts.push(ones(o - at));
-            }
-            parts.push(f.clone());
-            at = o + 3;
-        }
-        if at < self.channels {
-            parts.push(ones(self.channels - at));
-        }
-        Tensor::cat(parts, 2)
+        over_rgb_groups(f, &self.rgb, self.channels)
     }
 
     /// The values `[B, T, channels, H, W]` with the RGB groups divided by their frame's albedo.
@@ -82,6 +66,29 @@ impl Demodulation {
         let [b, c, h, w] = filtered.dims();
         filtered * self.full_factor(t / 2..t / 2 + 1).reshape([b, c, h, w])
     }
+}
+
+/// A per-frame RGB factor `[B, T, 3, H, W]` over all `channels` of a window's values: the
+/// factor on each 3-channel group at the offsets `rgb`, 1 on every other channel (alpha,
+/// single-channel AOVs). Demodulation and the guide blend scale the values with it.
+pub(crate) fn over_rgb_groups(f: Tensor<5>, rgb: &[usize], channels: usize) -> Tensor<5> {
+    let [b, t, _, h, w] = f.dims();
+    let ones = |n: usize| Tensor::<5>::ones([b, t, n, h, w], &f.device());
+    let mut parts = Vec::new();
+    let mut at = 0;
+    let mut groups = rgb.to_vec();
+    groups.sort_unstable();
+    for o in groups {
+        if o > at {
+            parts.push(ones(o - at));
+        }
+        parts.push(f.clone());
+        at = o + 3;
+    }
+    if at < channels {
+        parts.push(ones(channels - at));
+    }
+    Tensor::cat(parts, 2)
 }
 
 /// The prediction's kernels applied to `values` `[B, T, C, H, W]`, through `demod` when the

@@ -9,6 +9,7 @@ pub mod backbone;
 pub mod config;
 pub mod cpu;
 pub mod demod;
+pub mod guide_blend;
 pub mod kernel;
 pub mod layers;
 pub mod multiscale;
@@ -50,19 +51,24 @@ fn box_head(cin: usize, taps: usize, bias: f32, scale: f32, device: &Device) -> 
     head
 }
 
+/// The guide-blend head's initial bias: β ≈ 0.018, so a network that gains the blend first
+/// computes almost what it did without it.
+pub const GUIDE_BLEND_INIT_BIAS: f32 = -4.0;
+
 /// A blend-weight head (one channel, before the sigmoid) with small weights and a bias of
 /// [`BLEND_INIT_BIAS`].
 fn blend_head(cin: usize, device: &Device) -> Conv2d {
+    blend_head_with(cin, BLEND_INIT_BIAS, device)
+}
+
+/// A one-channel head with small weights and bias `bias`.
+fn blend_head_with(cin: usize, bias: f32, device: &Device) -> Conv2d {
     let std = 1e-2 / ((cin * 9) as f64).sqrt();
     let mut head = burn::nn::conv::Conv2dConfig::new([cin, 1], [3, 3])
         .with_padding(burn::nn::PaddingConfig2d::Same)
         .with_initializer(Initializer::Normal { mean: 0.0, std })
         .init(device);
-    head.bias = Some(Param::from_tensor(Tensor::full(
-        [1],
-        BLEND_INIT_BIAS,
-        device,
-    )));
+    head.bias = Some(Param::from_tensor(Tensor::full([1], bias, device)));
     head
 }
 
@@ -77,6 +83,8 @@ pub struct RaNet {
     head: Conv2d,
     coarse_heads: Vec<Conv2d>,
     blend_heads: Vec<Conv2d>,
+    /// With `guide_blend`: one per-frame head of the guide-blend weight β (before the sigmoid).
+    guide_heads: Vec<Conv2d>,
 }
 
 /// tKPCN (Vogels et al. 2018): per-frame spatial kernels, then a temporal kernel over the
@@ -158,11 +166,19 @@ impl Denoiser {
                 let blend_heads = (1..scales)
                     .map(|_| blend_head(backbone.out_channels(), device))
                     .collect();
+                let guide_heads = config
+                    .guide_blend
+                    .then(|| {
+                        blend_head_with(backbone.out_channels(), GUIDE_BLEND_INIT_BIAS, device)
+                    })
+                    .into_iter()
+                    .collect();
                 Network::Ra(RaNet {
                     backbone,
                     head,
                     coarse_heads,
                     blend_heads,
+                    guide_heads,
                 })
             }
             Arch::Tkpcn => {
@@ -206,6 +222,27 @@ impl Denoiser {
             n.blend_heads.push(blend_head(c, device));
         }
         self.config.kernel_scales = (scales > 1).then_some(scales);
+        Ok(self)
+    }
+
+    /// The same network with the guide blend on or off (`blend`): a new blend head starts at
+    /// [`GUIDE_BLEND_INIT_BIAS`], so a fine-tune that adds it starts close to the model it
+    /// grows. Only the RA network blends, and only with a guide in its inputs.
+    pub fn with_guide_blend(mut self, blend: bool, device: &Device) -> Result<Self, String> {
+        let Network::Ra(n) = &mut self.net else {
+            return Err("only arch = \"ra\" has the guide blend".into());
+        };
+        if blend && !self.config.inputs.guide {
+            return Err("the guide blend needs [inputs] guide = true".into());
+        }
+        if !blend {
+            n.guide_heads.clear();
+        } else if n.guide_heads.is_empty() {
+            let c = n.backbone.out_channels();
+            n.guide_heads
+                .push(blend_head_with(c, GUIDE_BLEND_INIT_BIAS, device));
+        }
+        self.config.guide_blend = blend;
         Ok(self)
     }
 
@@ -261,6 +298,9 @@ impl Denoiser {
                 }
                 for (s, h) in n.blend_heads.iter().enumerate() {
                     v.push((format!("blend.scale{s}"), h.weight.val()));
+                }
+                for h in &n.guide_heads {
+                    v.push(("guide_blend".into(), h.weight.val()));
                 }
                 v
             }
@@ -378,10 +418,31 @@ impl Denoiser {
     /// Predicts kernels for windows `[B, T, C, H, W]` (`C` = [`NetConfig::input_channels`],
     /// made by [`crate::infer::input::network_features`]) with threshold `t`.
     pub fn predict(&self, input: Tensor<5>, t: f32) -> Prediction {
+        self.predict_guided(input, t).0
+    }
+
+    /// [`Denoiser::predict`], and for a network with the guide blend its weights β per frame
+    /// and pixel, `[B, T, 1, H, W]` ([`crate::model::guide_blend::GuideBlend`]).
+    pub fn predict_guided(&self, input: Tensor<5>, t: f32) -> (Prediction, Option<Tensor<5>>) {
         timed(Stage::Heads, || self.predict_untimed(input, t))
     }
 
-    fn predict_untimed(&self, input: Tensor<5>, t: f32) -> Prediction {
+    /// β of the guide blend from per-frame features `[B·T, C, H', W']` (cropped to `h × w`).
+    fn guide_weights(
+        n: &RaNet,
+        feats: &Tensor<4>,
+        b: usize,
+        h: usize,
+        w: usize,
+    ) -> Option<Tensor<5>> {
+        let head = n.guide_heads.first()?;
+        let beta = sigmoid(conv2d(head, feats.clone(), false));
+        let [bt, _, _, _] = beta.dims();
+        let beta = beta.slice([0..bt, 0..1, 0..h, 0..w]);
+        Some(beta.reshape([b, bt / b, 1, h, w]))
+    }
+
+    fn predict_untimed(&self, input: Tensor<5>, t: f32) -> (Prediction, Option<Tensor<5>>) {
         let [b, frames, c, h, w] = input.dims();
         assert_eq!(
             frames, self.config.frames,
@@ -401,19 +462,24 @@ impl Denoiser {
         match &self.net {
             Network::Ra(n) if self.config.scales() == 1 => {
                 let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
+                let beta = Self::guide_weights(n, &feats, b, h, w);
                 let raw = conv2d(&n.head, feats, false).reshape([b, frames * k2, h, w]);
                 let weights = eta(raw, t, act, centre * k2 + k2 / 2);
-                Prediction::Single(Kernels {
-                    weights,
-                    frames,
-                    size: k,
-                })
+                (
+                    Prediction::Single(Kernels {
+                        weights,
+                        frames,
+                        size: k,
+                    }),
+                    beta,
+                )
             }
             Network::Ra(n) => {
                 let scales = self.config.scales();
                 let (ph, pw) = padded_size(h, w, scales);
                 let x = pad_to(input.reshape([b * frames, c, h, w]), ph, pw);
                 let mut feats = n.backbone.forward(x);
+                let beta = Self::guide_weights(n, &feats, b, h, w);
                 let mut kernels = Vec::with_capacity(scales);
                 let mut blend = Vec::with_capacity(scales - 1);
                 for s in 0..scales {
@@ -441,20 +507,26 @@ impl Denoiser {
                         blend.push(sigmoid(conv2d(&n.blend_heads[s], centre_feats, false)));
                     }
                 }
-                Prediction::MultiScale(MultiScaleKernels {
-                    scales: kernels,
-                    blend,
-                    size: (h, w),
-                })
+                (
+                    Prediction::MultiScale(MultiScaleKernels {
+                        scales: kernels,
+                        blend,
+                        size: (h, w),
+                    }),
+                    beta,
+                )
             }
             Network::Spatial(n) => {
                 let x = input.narrow(1, centre, 1).reshape([b, c, h, w]);
                 let raw = conv2d(&n.head, n.backbone.forward(x), false);
-                Prediction::Single(Kernels {
-                    weights: eta(raw, t, act, k2 / 2),
-                    frames: 1,
-                    size: k,
-                })
+                (
+                    Prediction::Single(Kernels {
+                        weights: eta(raw, t, act, k2 / 2),
+                        frames: 1,
+                        size: k,
+                    }),
+                    None,
+                )
             }
             Network::Tkpcn(n) => {
                 let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
@@ -464,18 +536,21 @@ impl Denoiser {
                 let tfeat = conv2d(&n.temporal_b, conv2d(&n.temporal_a, joined, true), true);
                 let raw = conv2d(&n.temporal_head, tfeat, false);
                 let temporal = eta(raw, t, act, centre * k2 + k2 / 2);
-                Prediction::TwoStage {
-                    spatial: Kernels {
-                        weights: spatial,
-                        frames: 1,
-                        size: k,
+                (
+                    Prediction::TwoStage {
+                        spatial: Kernels {
+                            weights: spatial,
+                            frames: 1,
+                            size: k,
+                        },
+                        temporal: Kernels {
+                            weights: temporal,
+                            frames,
+                            size: k,
+                        },
                     },
-                    temporal: Kernels {
-                        weights: temporal,
-                        frames,
-                        size: k,
-                    },
-                }
+                    None,
+                )
             }
         }
     }

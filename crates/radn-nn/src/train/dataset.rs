@@ -257,7 +257,11 @@ pub fn prepare(
                     (w, h),
                     (x0, y0),
                     &exposures,
-                    (&feats, &vals, &guides),
+                    LevelPlanes {
+                        feats: &feats,
+                        vals: &vals,
+                        guides: &guides,
+                    },
                     &targets,
                 );
                 writer.write(&record)?;
@@ -309,6 +313,13 @@ fn io_err(p: &Path, e: std::io::Error) -> NnError {
     }
 }
 
+/// One window's per-input-level planes: base features, colour and (in guided sets) guides.
+struct LevelPlanes<'a> {
+    feats: &'a [Vec<f32>],
+    vals: &'a [Vec<f32>],
+    guides: &'a [Vec<f32>],
+}
+
 /// Every frame's warped guide, `[T, 3, H, W]`.
 fn guide_values(win: &radn_core::align::AlignedWindow) -> Vec<f32> {
     win.frames
@@ -331,7 +342,7 @@ fn encode(
     (w, h): (usize, usize),
     (x0, y0): (usize, usize),
     exposures: &[f32],
-    (feats, vals, guides): (&[Vec<f32>], &[Vec<f32>], &[Vec<f32>]),
+    planes: LevelPlanes,
     targets: &[Option<&[f32]>],
 ) -> Vec<u8> {
     let s = opts.tile;
@@ -353,11 +364,11 @@ fn encode(
             }
         }
     };
-    for (i, (f, v)) in feats.iter().zip(vals).enumerate() {
+    for (i, (f, v)) in planes.feats.iter().zip(planes.vals).enumerate() {
         crop(f, opts.frames * INPUT_CHANNELS);
         crop(v, opts.frames * 3);
         if guided {
-            crop(&guides[i], opts.frames * 3);
+            crop(&planes.guides[i], opts.frames * 3);
         }
     }
     for t in targets {

@@ -297,6 +297,23 @@ pub fn make_batch(
     }
 }
 
+/// A batch's colour values `[B, T, 3, S, S]` blended toward their guides by `beta`, for a
+/// network with the guide blend (`beta` is `None` without one: the values as they are).
+fn blend_values(
+    config: &NetConfig,
+    features: &Tensor<5>,
+    beta: Option<Tensor<5>>,
+    values: Tensor<5>,
+) -> Tensor<5> {
+    match beta {
+        Some(beta) => {
+            crate::model::guide_blend::GuideBlend::new(features, beta, &config.inputs, vec![0], 3)
+                .apply(values)
+        }
+        None => values,
+    }
+}
+
 /// A network configured as `config` holding the weights of the model file `path`, refused when
 /// the layers differ (only the kernel settings — threshold, demodulation — and the name may).
 fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoiser> {
@@ -314,6 +331,16 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
     if d.config.inputs != config.inputs {
         // a fine-tune may add input features: their first-layer weights start at zero
         d = d.with_inputs(config.inputs.clone(), device);
+    }
+    if d.config.guide_blend != config.guide_blend {
+        // a fine-tune may add the guide blend: its head starts near β = 0
+        d.config.inputs = config.inputs.clone();
+        d = d
+            .with_guide_blend(config.guide_blend, device)
+            .map_err(|detail| NnError::Load {
+                path: path.to_path_buf(),
+                detail,
+            })?;
     }
     if d.config.scales() != config.scales() {
         // a fine-tune may add (or drop) kernel scales: the new heads start from the old ones
@@ -540,10 +567,11 @@ impl Trainer {
         let b = make_batch(&tiles, frames, tile, crop, &inputs, &self.device);
         let thr = self.denoiser.config.default_threshold();
         let demod = self.demodulation(&b.features);
-        let pred = self.denoiser.predict(b.features, thr);
+        let (pred, beta) = self.denoiser.predict_guided(b.features.clone(), thr);
+        let values = blend_values(&self.denoiser.config, &b.features, beta, b.values);
         let loss = objective(
             &pred,
-            b.values,
+            values,
             b.target,
             demod.as_ref(),
             self.config.mode,
@@ -611,10 +639,11 @@ impl Trainer {
                 &plain,
             );
             let demod = self.demodulation(&b.features);
-            let pred = denoiser.predict(b.features, thr);
+            let (pred, beta) = denoiser.predict_guided(b.features.clone(), thr);
+            let values = blend_values(&denoiser.config, &b.features, beta, b.values);
             loss += objective(
                 &pred,
-                b.values.clone(),
+                values.clone(),
                 b.target.clone(),
                 demod.as_ref(),
                 self.config.mode,
@@ -623,7 +652,7 @@ impl Trainer {
                 frames,
             )
             .into_scalar::<f32>() as f64;
-            let out = crate::model::demod::filter(&pred, b.values, demod.as_ref());
+            let out = crate::model::demod::filter(&pred, values, demod.as_ref());
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)
