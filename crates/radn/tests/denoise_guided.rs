@@ -230,3 +230,69 @@ fn without_oidn_the_oidn_guide_says_what_to_install_and_writes_nothing() {
         !d.path().join("o").exists() || std::fs::read_dir(d.path().join("o")).unwrap().count() == 0
     );
 }
+
+#[test]
+fn a_frame_missing_its_guide_layer_is_named_and_nothing_is_written_half() {
+    let d = tempfile::tempdir().unwrap();
+    let m = guided_model(d.path());
+    let src = denoised_sample();
+    std::fs::create_dir_all(d.path().join("in")).unwrap();
+    for f in 1..=3 {
+        let from = src.replace("####", &format!("{f:04}"));
+        let to = d.path().join(format!("in/frame_{f:04}.exr"));
+        if f == 3 {
+            // the same frame without Cycles' denoised Combined layer
+            let file = ExrFile::read(&from).unwrap();
+            let channels = file
+                .channel_names()
+                .into_iter()
+                .filter(|n| !n.starts_with("ViewLayer.Combined."))
+                .map(|n| {
+                    let v = file.channel_f32(&n).unwrap();
+                    (n, v)
+                })
+                .collect();
+            ExrFile::from_channels(
+                &to,
+                file.width(),
+                file.height(),
+                channels,
+                radn_core::exr_file::SampleKind::F32,
+            )
+            .write_atomic(&to)
+            .unwrap();
+        } else {
+            std::fs::copy(&from, &to).unwrap();
+        }
+    }
+    let out = d.path().join("out");
+    let r = radn(&[
+        "denoise",
+        "--model",
+        m.to_str().unwrap(),
+        "-i",
+        &format!("{}/in/frame_####.exr", d.path().display()),
+        "-o",
+        &format!("{}/f_####.exr", out.display()),
+        "--guide",
+        "denoised",
+    ]);
+    let err = String::from_utf8_lossy(&r.stderr);
+    assert!(!r.status.success());
+    assert!(
+        err.contains("frame_0003.exr") && err.contains("denoised beauty"),
+        "{err}"
+    );
+    // frames whose windows reach frame 3 are not written, and nothing is left half-written
+    let left: Vec<String> = std::fs::read_dir(&out)
+        .map(|d| {
+            d.map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+                .collect()
+        })
+        .unwrap_or_default();
+    assert!(left.iter().all(|n| !n.contains("tmp")), "{left:?}");
+    assert!(
+        !left.iter().any(|n| n == "f_0001.exr" || n == "f_0003.exr"),
+        "{left:?}"
+    );
+}
