@@ -13,20 +13,43 @@ pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../../models/default.safeten
 /// The name errors and reports use for the compiled-in model.
 pub const DEFAULT_MODEL_NAME: &str = "<built-in default model>";
 
+/// The guided model (`models/guided.safetensors`, see `models/README.md`), compiled in like the
+/// default: what `radn denoise --guide …` runs when no `--model` is given.
+pub const GUIDED_MODEL: &[u8] = include_bytes!("../../../models/guided.safetensors");
+
+/// The name errors and reports use for the compiled-in guided model.
+pub const GUIDED_MODEL_NAME: &str = "<built-in guided model>";
+
 /// Loads `path`, or the compiled-in default model when none is given.
 pub fn load(path: Option<&Path>, device: &Device) -> Result<Denoiser> {
+    load_for(path, false, device)
+}
+
+/// Loads `path`, or when none is given the compiled-in guided model if `guided` (a guide was
+/// asked for), else the compiled-in default.
+pub fn load_for(path: Option<&Path>, guided: bool, device: &Device) -> Result<Denoiser> {
     Ok(match path {
         Some(p) => radn_nn::model::store::load(p, device)?,
         None => {
-            radn_nn::model::store::load_bytes(DEFAULT_MODEL, Path::new(DEFAULT_MODEL_NAME), device)?
+            let (bytes, name) = builtin(guided);
+            radn_nn::model::store::load_bytes(bytes, Path::new(name), device)?
         }
     })
 }
 
-/// How a model choice is shown to the user.
-pub fn label(path: Option<&Path>) -> PathBuf {
+fn builtin(guided: bool) -> (&'static [u8], &'static str) {
+    if guided {
+        (GUIDED_MODEL, GUIDED_MODEL_NAME)
+    } else {
+        (DEFAULT_MODEL, DEFAULT_MODEL_NAME)
+    }
+}
+
+/// How a model choice is shown to the user: the file, or the compiled-in guided model for a
+/// run that asked for a guide (`guided`), else the compiled-in default.
+pub fn label_for(path: Option<&Path>, guided: bool) -> PathBuf {
     path.map(Path::to_path_buf)
-        .unwrap_or_else(|| PathBuf::from(DEFAULT_MODEL_NAME))
+        .unwrap_or_else(|| PathBuf::from(builtin(guided).1))
 }
 
 #[cfg(test)]
@@ -37,5 +60,16 @@ mod tests {
     fn the_compiled_in_default_model_loads() {
         let d = load(None, &Device::flex()).unwrap();
         assert!(d.config.frames == 5 && d.config.kernel_taps() > 0);
+        assert!(!d.config.inputs.guide);
+    }
+
+    #[test]
+    fn a_guide_without_a_model_picks_the_compiled_in_guided_model() {
+        let d = load_for(None, true, &Device::flex()).unwrap();
+        assert!(
+            d.config.inputs.guide,
+            "the built-in guided model reads a guide"
+        );
+        assert_eq!(label_for(None, true), PathBuf::from(GUIDED_MODEL_NAME));
     }
 }

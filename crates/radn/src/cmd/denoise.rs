@@ -236,9 +236,11 @@ pub fn run(a: Args) -> Result<()> {
 /// Loads the network method from the command-line options.
 fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     let device = radn_nn::burn::tensor::Device::flex();
-    let d = crate::model::load(a.model.as_deref(), &device)?;
-    a.guide
-        .check_model(&d, &crate::model::label(a.model.as_deref()))?;
+    let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
+    a.guide.check_model(
+        &d,
+        &crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some()),
+    )?;
     let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
     if let Some(t) = a.threshold {
         let k = n.denoiser.config.kernel_taps() as f32;

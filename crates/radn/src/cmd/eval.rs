@@ -174,9 +174,11 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
         .position(|(f, _)| *f == display)
         .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
     let device = radn_nn::burn::tensor::Device::flex();
-    let d = crate::model::load(a.model.as_deref(), &device)?;
-    a.guide
-        .check_model(&d, &crate::model::label(a.model.as_deref()))?;
+    let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
+    a.guide.check_model(
+        &d,
+        &crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some()),
+    )?;
     let net = NetworkDenoiser::new(d, device);
     let mut reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
     let oidn = a.guide.apply(&mut reader)?;
@@ -193,8 +195,8 @@ fn utilization(a: &Args) -> Result<()> {
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
     let device = radn_nn::burn::tensor::Device::flex();
-    let d = crate::model::load(a.model.as_deref(), &device)?;
-    let model = crate::model::label(a.model.as_deref());
+    let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
+    let model = crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some());
     a.guide.check_model(&d, &model)?;
     let net = NetworkDenoiser::new(d, device);
     let mut reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;

@@ -1,0 +1,114 @@
+//! The guided model compiled into `radn` (models/guided.safetensors, run by `--guide` without
+//! `--model`) against Intel Open Image Denoise and the default model on the shipped Cycles
+//! sample (frames 3–7 against 1024 spp), so a weaker guided model cannot be shipped by mistake.
+//! OIDN here is the same prefiltered OIDN the guides are (`radn_core::guide`).
+//!
+//! Needs OIDN (`scripts/setup` installs it); without it the test says so and passes, unless
+//! `RADN_REQUIRE_OIDN=1` (which `scripts/test` sets).
+
+mod common;
+
+use common::{beauty_rgb, radn_ok, sample};
+use radn_core::exr_file::ExrFile;
+use radn_core::frame::{FrameReader, Requirements};
+use radn_core::guide::OidnGuides;
+use radn_core::mapping::ChannelMapping;
+use radn_core::metrics::{psnr, temporal};
+use radn_core::Plane;
+
+const FRAMES: std::ops::RangeInclusive<i64> = 3..=7;
+
+/// Per input level: the least PSNR margin (dB) over OIDN, the largest tMAE as a share of
+/// OIDN's, and the least PSNR margin over the default model. Measured with the shipped guided
+/// model (models/README.md, "Guided model"), frames 3–7: OIDN 32.03 / 34.23 / 36.66 dB and tMAE
+/// 0.0195 / 0.0154 / 0.0118; guided 32.40 / 34.07 / 35.73 dB and 0.0177 / 0.0149 / 0.0129;
+/// default 31.04 / 33.00 / 34.97 dB. Ahead of OIDN at 4 spp only (issue 19 asks for every
+/// level): the 11- and 32-spp gates keep it from falling further behind.
+const GATES: [(&str, f64, f64, f64); 3] = [
+    ("low", 0.25, 0.95, 1.0),
+    ("half", -0.35, 1.0, 0.8),
+    ("high", -1.1, 1.15, 0.5),
+];
+
+fn rgb(path: &std::path::Path) -> Plane {
+    beauty_rgb(&ExrFile::read(path).unwrap())
+}
+
+/// Mean PSNR and mean tMAE (consecutive pairs) of `frames` against the sample's reference.
+fn scores(frames: &[Plane]) -> (f64, f64) {
+    let refs: Vec<Plane> = FRAMES
+        .map(|f| rgb(&sample().join(format!("ref/frame_{f:04}.exr"))))
+        .collect();
+    let p = frames
+        .iter()
+        .zip(&refs)
+        .map(|(a, r)| psnr(a, r).unwrap())
+        .sum::<f64>()
+        / frames.len() as f64;
+    let t = (1..frames.len())
+        .map(|i| {
+            temporal(&frames[i - 1], &frames[i], &refs[i - 1], &refs[i])
+                .unwrap()
+                .0
+        })
+        .sum::<f64>()
+        / (frames.len() - 1) as f64;
+    (p, t)
+}
+
+fn denoised(dir: &std::path::Path, level: &str, extra: &[&str]) -> Vec<Plane> {
+    let input = format!("{}/{level}/frame_####.exr", sample().display());
+    let out = format!("{}/dn_####.exr", dir.display());
+    let mut args = vec!["denoise", "-i", &input, "-o", &out, "--frames", "3-7"];
+    args.extend(extra);
+    radn_ok(&args);
+    FRAMES
+        .map(|f| rgb(&dir.join(format!("dn_{f:04}.exr"))))
+        .collect()
+}
+
+#[test]
+fn the_guided_model_beats_oidn_at_4_spp_and_the_default_at_every_level_on_the_sample() {
+    let oidn = match OidnGuides::new(2) {
+        Ok(g) => g,
+        Err(e) if std::env::var_os("RADN_REQUIRE_OIDN").is_none() => {
+            eprintln!("SKIPPED: Intel Open Image Denoise is not installed here: {e}");
+            return;
+        }
+        Err(e) => panic!("RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"),
+    };
+    let reader = FrameReader::new(
+        ChannelMapping::builtin("cycles").unwrap(),
+        Requirements::DENOISE,
+    );
+    let d = tempfile::tempdir().unwrap();
+    for (level, psnr_margin, tmae_ratio, over_default) in GATES {
+        let oidn_frames: Vec<Plane> = FRAMES
+            .map(|f| {
+                oidn.of_file(&reader, &sample().join(format!("{level}/frame_{f:04}.exr")))
+                    .unwrap()
+            })
+            .collect();
+        let guided = denoised(
+            &d.path().join(format!("{level}-g")),
+            level,
+            &["--guide", "oidn"],
+        );
+        let default = denoised(&d.path().join(format!("{level}-d")), level, &[]);
+        let (po, to) = scores(&oidn_frames);
+        let (pg, tg) = scores(&guided);
+        let (pd, _) = scores(&default);
+        eprintln!(
+            "{level}: OIDN {po:.2} dB / {to:.4}, guided {pg:.2} dB / {tg:.4}, default {pd:.2} dB"
+        );
+        assert!(
+            pg > po + psnr_margin && pg > pd + over_default,
+            "{level}: guided {pg:.2} dB vs OIDN {po:.2} dB (+{psnr_margin}) and default {pd:.2} \
+             (+{over_default})"
+        );
+        assert!(
+            tg < tmae_ratio * to,
+            "{level}: guided tMAE {tg:.4} vs OIDN {to:.4} (x{tmae_ratio})"
+        );
+    }
+}
