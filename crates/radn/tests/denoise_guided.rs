@@ -10,7 +10,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{assert_aovs_sum_to_beauty, radn, radn_ok, sample, with_aovs};
+use common::{assert_aovs_sum_to_beauty, oidn_or_skip, radn, radn_ok, sample, with_aovs};
 use radn_core::exr_file::ExrFile;
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::config::InputConfig;
@@ -44,18 +44,6 @@ fn guided_model_with(dir: &Path, blend: bool, scales: usize) -> PathBuf {
     config.kernel_scales = (scales > 1).then_some(scales);
     radn_nn::model::store::save(&Denoiser::new(config, &Device::flex()), &p).unwrap();
     p
-}
-
-/// Whether OIDN opens here; panics where `RADN_REQUIRE_OIDN` says it must.
-fn have_oidn() -> bool {
-    match radn_core::guide::OidnDenoiser::new(1) {
-        Ok(_) => true,
-        Err(e) if std::env::var_os("RADN_REQUIRE_OIDN").is_none() => {
-            eprintln!("SKIPPED: Intel Open Image Denoise is not installed here: {e}");
-            false
-        }
-        Err(e) => panic!("RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"),
-    }
 }
 
 fn rgb(f: &ExrFile, layer: &str) -> Vec<f32> {
@@ -113,7 +101,7 @@ fn the_renderers_denoised_layer_guides_the_noisy_one_and_bands_equal_whole_frame
     // values give the same result, a different guide another one
     let named = run("Combined", "0");
     assert_eq!(rgb(&named, "Noisy Image"), result);
-    if have_oidn() {
+    if oidn_or_skip(1).is_some() {
         let other = run("oidn", "0");
         assert!(worst(&rgb(&other, "Noisy Image"), &result) > 1e-4);
     }
@@ -121,7 +109,7 @@ fn the_renderers_denoised_layer_guides_the_noisy_one_and_bands_equal_whole_frame
 
 #[test]
 fn guided_kernels_keep_aovs_summing_to_the_beauty() {
-    if !have_oidn() {
+    if oidn_or_skip(1).is_none() {
         return;
     }
     for (blend, scales) in [(false, 1), (true, 1), (true, 3)] {

@@ -8,10 +8,9 @@
 
 mod common;
 
-use common::{beauty_rgb, radn_ok, sample};
+use common::{beauty_rgb, oidn_or_skip, radn_ok, sample};
 use radn_core::exr_file::ExrFile;
 use radn_core::frame::{FrameReader, Requirements};
-use radn_core::guide::OidnGuides;
 use radn_core::mapping::ChannelMapping;
 use radn_core::metrics::{psnr, temporal};
 use radn_core::Plane;
@@ -69,14 +68,7 @@ fn denoised(dir: &std::path::Path, level: &str, extra: &[&str]) -> Vec<Plane> {
 
 #[test]
 fn the_guided_model_beats_oidn_at_4_spp_and_the_default_at_every_level_on_the_sample() {
-    let oidn = match OidnGuides::new(2) {
-        Ok(g) => g,
-        Err(e) if std::env::var_os("RADN_REQUIRE_OIDN").is_none() => {
-            eprintln!("SKIPPED: Intel Open Image Denoise is not installed here: {e}");
-            return;
-        }
-        Err(e) => panic!("RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"),
-    };
+    let Some(oidn) = oidn_or_skip(2) else { return };
     let reader = FrameReader::new(
         ChannelMapping::builtin("cycles").unwrap(),
         Requirements::DENOISE,

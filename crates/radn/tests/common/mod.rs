@@ -111,3 +111,16 @@ pub fn assert_aovs_sum_to_beauty(res: &ExrFile, src: &ExrFile) {
         );
     }
 }
+
+/// Intel Open Image Denoise with `threads` threads, or `None` (saying so) where it is not
+/// installed; where `RADN_REQUIRE_OIDN` is set (as `scripts/test` does) its absence fails.
+pub fn oidn_or_skip(threads: usize) -> Option<radn_core::guide::OidnGuides> {
+    match radn_core::guide::OidnGuides::new(threads) {
+        Ok(g) => Some(g),
+        Err(e) if std::env::var_os("RADN_REQUIRE_OIDN").is_none() => {
+            eprintln!("SKIPPED: Intel Open Image Denoise is not installed here: {e}");
+            None
+        }
+        Err(e) => panic!("RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"),
+    }
+}
