@@ -22,6 +22,9 @@ pub struct StepTiming {
     pub ms: f64,
     /// Forward FLOPs of the measured computation per batch (multiply-adds count 2).
     pub forward_flops: f64,
+    /// Training only: the loss of every step on the same batch, the warm-up step first (so a
+    /// falling sequence shows that the steps train, on whichever device ran them).
+    pub losses: Vec<f64>,
 }
 
 impl StepTiming {
@@ -71,11 +74,17 @@ pub fn time_network(
     let mut optim = AdamConfig::new().init();
     let thr = cfg.default_threshold();
     let mut times = Vec::new();
+    let mut losses = Vec::new();
     for i in 0..steps + 1 {
         let start = Instant::now();
         let loss = smape(d.predict(x.clone(), thr).apply(v.clone()), y.clone());
+        losses.push(loss.clone().into_scalar::<f32>() as f64);
         let grads = GradientsParams::from_grads(loss.backward(), &d.net);
         d.net = optim.step(1e-4, d.net, grads);
+        // a GPU runs asynchronously: the step is done when the device has finished it
+        device
+            .sync()
+            .expect("the device failed during the training step");
         if i > 0 {
             times.push(start.elapsed().as_secs_f64() * 1e3); // first step warms up
         }
@@ -83,6 +92,7 @@ pub fn time_network(
     StepTiming {
         ms: median(times),
         forward_flops: batch as f64 * d.forward_flops(tile, tile, 3),
+        losses,
     }
 }
 
@@ -112,6 +122,7 @@ pub fn time_inference(
     StepTiming {
         ms: median(times),
         forward_flops: batch as f64 * d.forward_flops(tile, tile, 3),
+        losses: Vec::new(),
     }
 }
 
@@ -150,6 +161,9 @@ pub fn time_conv_stack(
         let loss = h.mean();
         let grads = GradientsParams::from_grads(loss.backward(), &s);
         s = optim.step(1e-4, s, grads);
+        device
+            .sync()
+            .expect("the device failed during the training step");
         if i > 0 {
             times.push(start.elapsed().as_secs_f64() * 1e3);
         }
@@ -162,6 +176,7 @@ pub fn time_conv_stack(
     StepTiming {
         ms: median(times),
         forward_flops: flops,
+        losses: Vec::new(),
     }
 }
 

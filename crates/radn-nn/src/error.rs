@@ -20,6 +20,9 @@ pub enum NnError {
     /// A model file cannot be written.
     #[error("cannot save model '{path}': {detail}")]
     Save { path: PathBuf, detail: String },
+    /// The device asked for (`--device`) cannot be used.
+    #[error("cannot use device '{device}': {detail}")]
+    Device { device: String, detail: String },
     /// Errors from the frame side.
     #[error(transparent)]
     Core(#[from] radn_core::Error),

@@ -37,8 +37,11 @@ pub struct Args {
     /// Instead: time the 3×3 convolution shapes of the default network (input, residual
     /// blocks, RA predictor, kernel head) at inference on `--tile` maps of 5 frames, through
     /// radn's CPU path and through burn's, in GFLOP/s.
-    #[arg(long, conflicts_with = "network")]
+    #[arg(long, conflicts_with_all = ["network", "device"])]
     pub convs: bool,
+    /// For --network (training and --inference): where it runs, cpu or cuda[:N].
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
+    pub device: radn_nn::device::ComputeDevice,
     /// Also time the classic denoiser's stages.
     #[arg(long)]
     pub classic: bool,
@@ -53,9 +56,9 @@ pub fn run(a: Args) -> Result<()> {
     }
     if let Some(preset) = &a.network {
         if a.inference {
-            return inference(preset, a.tile, a.batch, a.repeat);
+            return inference(preset, a.tile, a.batch, a.repeat, a.device);
         }
-        return network(preset, a.tile, a.batch, a.repeat);
+        return network(preset, a.tile, a.batch, a.repeat, a.device);
     }
     let input = a
         .input
@@ -147,12 +150,18 @@ fn convs(tile: usize, repeats: usize) -> Result<()> {
 }
 
 /// Times inference calls of a network on batches of tiles.
-fn inference(preset: &str, tile: usize, batch: usize, repeats: usize) -> Result<()> {
+fn inference(
+    preset: &str,
+    tile: usize,
+    batch: usize,
+    repeats: usize,
+    on: radn_nn::device::ComputeDevice,
+) -> Result<()> {
     let cfg = net_config(preset)?;
-    let device = radn_nn::burn::tensor::Device::flex();
+    let device = on.open()?;
     let t = radn_nn::bench::time_inference(&cfg, tile, batch, repeats.max(1), &device);
     println!(
-        "network '{preset}' inference, {batch} x {tile}x{tile} tile x {} frames, {} threads: {:.0} ms ({:.0} ms per tile, {:.3} MP/s of tile area), {:.1} GFLOP/s",
+        "network '{preset}' inference on {on}, {batch} x {tile}x{tile} tile x {} frames, {} threads: {:.0} ms ({:.0} ms per tile, {:.3} MP/s of tile area), {:.1} GFLOP/s",
         cfg.frames,
         rayon::current_num_threads(),
         t.ms,
@@ -163,25 +172,39 @@ fn inference(preset: &str, tile: usize, batch: usize, repeats: usize) -> Result<
     Ok(())
 }
 
-fn network(preset: &str, tile: usize, batch: usize, steps: usize) -> Result<()> {
+fn network(
+    preset: &str,
+    tile: usize,
+    batch: usize,
+    steps: usize,
+    on: radn_nn::device::ComputeDevice,
+) -> Result<()> {
     use radn_nn::bench::{time_conv_stack, time_network};
     use radn_nn::model::config::Backbone;
     let cfg = net_config(preset)?;
-    let device = radn_nn::burn::tensor::Device::flex().autodiff();
+    let device = on.open_for_training()?;
     let params = radn_nn::Denoiser::new(cfg.clone(), &device).num_params();
     let net = time_network(&cfg, tile, batch, steps.max(1), &device);
     println!(
-        "network '{preset}': {params} parameters, {} threads",
+        "network '{preset}': {params} parameters, on {on}, {} threads",
         rayon::current_num_threads()
     );
     println!(
-        "  training step (fwd+bwd+Adam), {batch} x {tile}x{tile} tile x {} frames: {:.0} ms ({:.0} ms per tile), {:.1} GFLOP/s ({:.2} GFLOP forward)",
+        "  training step (fwd+bwd+Adam), {batch} x {tile}x{tile} tile x {} frames: {:.0} ms ({:.0} ms per tile, {:.2} tiles/s), {:.1} GFLOP/s ({:.2} GFLOP forward)",
         cfg.frames,
         net.ms,
         net.ms / batch as f64,
+        batch as f64 / (net.ms * 1e-3),
         net.gflops(),
         net.forward_flops / 1e9
     );
+    if let (Some(first), Some(last)) = (net.losses.first(), net.losses.last()) {
+        println!(
+            "  loss on that batch: {first:.5} before the first step, {last:.5} after {} steps ({})",
+            net.losses.len() - 1,
+            if last < first { "lower" } else { "NOT lower" }
+        );
+    }
     if let Backbone::Resnet { blocks, width, .. } = &cfg.backbone {
         let stack = time_conv_stack(
             *width,

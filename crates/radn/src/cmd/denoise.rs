@@ -11,6 +11,7 @@ use radn_core::sequence::{sequence_files, SequencePattern};
 use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
 
 use crate::input::{ChannelArgs, GuideArgs};
+use radn_nn::device::ComputeDevice;
 
 /// Denoising methods.
 #[derive(clap::ValueEnum, Clone, Copy, Debug, PartialEq, Eq)]
@@ -99,6 +100,10 @@ pub struct Args {
     /// temporal reach, paper section 3).
     #[arg(long, default_value_t = 1)]
     pub passes: usize,
+    /// Network: where it runs, cpu or cuda[:N] (a GPU; needs a build with the `cuda` feature,
+    /// scripts/build-cuda). Alignment, reading and writing stay on the CPU.
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
+    pub device: ComputeDevice,
     #[command(flatten)]
     pub guide: GuideArgs,
     #[command(flatten)]
@@ -182,6 +187,12 @@ pub fn run(a: Args) -> Result<()> {
                 "--guide steers a guided network; the classic denoiser reads no guide"
             ))
         }
+        Method::Classic if a.device.is_gpu() => {
+            return Err(anyhow!(
+                "--device {}: the classic denoiser runs on the CPU only; use --method network",
+                a.device
+            ))
+        }
         Method::Classic => Box::new(a.classic.denoiser()),
         Method::Network => Box::new(network_from(&a)?),
     };
@@ -235,7 +246,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Loads the network method from the command-line options.
 fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
-    let device = radn_nn::burn::tensor::Device::flex();
+    let device = a.device.open()?;
     let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
     a.guide.check_model(
         &d,

@@ -57,6 +57,9 @@ pub struct Args {
     /// For --utilization and --html heat maps of a guided model: where its guides come from.
     #[command(flatten)]
     pub guide: GuideArgs,
+    /// For --utilization and --html heat maps: where the network runs, cpu or cuda[:N].
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
+    pub device: radn_nn::device::ComputeDevice,
     /// Write per-frame and mean metrics as JSON here.
     #[arg(long)]
     pub json: Option<PathBuf>,
@@ -173,7 +176,7 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
         .iter()
         .position(|(f, _)| *f == display)
         .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
-    let device = radn_nn::burn::tensor::Device::flex();
+    let device = a.device.open()?;
     let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
     a.guide.check_model(
         &d,
@@ -194,7 +197,7 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
 fn utilization(a: &Args) -> Result<()> {
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
-    let device = radn_nn::burn::tensor::Device::flex();
+    let device = a.device.open()?;
     let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
     let model = crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some());
     a.guide.check_model(&d, &model)?;

@@ -28,6 +28,10 @@ pub struct Args {
     /// with --resume; the cosine schedule is recomputed for the new length).
     #[arg(long)]
     pub steps: Option<usize>,
+    /// Where to train: cpu or cuda[:N] (needs a build with the `cuda` feature,
+    /// scripts/build-cuda). Checkpoints and model files are the same on both.
+    #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
+    pub device: radn_nn::device::ComputeDevice,
 }
 
 /// Trains.
@@ -47,7 +51,7 @@ pub fn run(a: Args) -> Result<()> {
         config.steps = n;
     }
     let base = a.config.parent().map(PathBuf::from).unwrap_or_default();
-    let device = radn_nn::burn::tensor::Device::flex().autodiff();
+    let device = a.device.open_for_training()?;
     let mut trainer = Trainer::new(config.clone(), &base, &a.out, a.resume, &device)?;
     let pb = indicatif::ProgressBar::new(config.steps as u64);
     pb.set_style(
@@ -57,8 +61,9 @@ pub fn run(a: Args) -> Result<()> {
     );
     pb.set_position(trainer.state.step as u64);
     println!(
-        "training '{}' ({} parameters) from step {} to {}",
+        "training '{}' ({} parameters) on {} from step {} to {}",
         trainer.denoiser.config.name,
+        a.device,
         trainer.denoiser.num_params(),
         trainer.state.step,
         config.steps
