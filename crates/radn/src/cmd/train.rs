@@ -61,7 +61,7 @@ pub fn run(a: Args) -> Result<()> {
     );
     pb.set_position(trainer.state.step as u64);
     println!(
-        "training '{}' ({} parameters) on {} from step {} to {}",
+        "training '{}' on {} ({} parameters) from step {} to {}",
         trainer.denoiser.config.name,
         a.device,
         trainer.denoiser.num_params(),
