@@ -83,3 +83,40 @@ fn a_training_step_on_the_gpu_lowers_the_loss() {
         "the loss on a fixed batch went {first} -> {last}"
     );
 }
+
+#[test]
+fn a_build_without_cuda_refuses_the_gpu_before_writing_anything() {
+    if ComputeDevice::CUDA_BUILT {
+        eprintln!("SKIPPED: this build has CUDA");
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let output = common::radn(&[
+        "denoise",
+        "-i",
+        sample().join("low").to_str().unwrap(),
+        "-o",
+        out.join("frame_####.exr").to_str().unwrap(),
+        "--device",
+        "cuda:1",
+    ]);
+    assert!(!output.status.success());
+    let err = String::from_utf8_lossy(&output.stderr);
+    assert!(
+        err.contains("cuda:1") && err.contains("scripts/build-cuda"),
+        "{err}"
+    );
+    assert!(!out.exists(), "an output folder was made");
+    let train = common::radn(&[
+        "train",
+        "--config",
+        "/nonexistent.toml",
+        "--out",
+        d.path().join("run").to_str().unwrap(),
+        "--device",
+        "nvidia",
+    ]);
+    let err = String::from_utf8_lossy(&train.stderr);
+    assert!(err.contains("unknown device 'nvidia'"), "{err}");
+}
