@@ -7,10 +7,13 @@
         valid), written as ZIP-compressed EXRs with the same channels: a 1080p sequence for
         throughput, made on a machine that has no renderer and no network.
     gpu_check.py compare DIR_A DIR_B TOLERANCE
-        Every channel of every frame of A against B (same names): the largest
-        |a - b| / (|b| + 0.01) and the PSNR of a against b over the RGB channels (peak 1 after
-        clamping). Prints a table and exits 1 when the largest relative difference exceeds
-        TOLERANCE.
+        Every channel of every frame of A against B (same names): the relative difference
+        |a - b| / (|b| + 0.01) of every sample, and the PSNR of a against b over the RGB
+        channels (peak 1 after clamping). Prints a table; exits 1 unless at most 0.01% of the
+        samples differ by more than TOLERANCE and every frame's PSNR is at least 60 dB. (The
+        kernels' threshold is a step: a weight that lands on the threshold in one run and just
+        below it in the other is kept in one and dropped in the other, so a few samples may
+        differ by more than float rounding.)
 
 Needs numpy and the OpenEXR module (the check carries the OpenEXR wheel and puts it on the path).
 """
@@ -54,9 +57,9 @@ def compare(a_dir, b_dir, tolerance):
     a_frames = sorted(Path(a_dir).glob("*.exr"))
     if not a_frames:
         sys.exit(f"gpu_check: no EXR frames in {a_dir}")
-    worst = 0.0
-    print("| frame | channels | max relative difference | RGB PSNR (dB) |")
-    print("|---|---:|---:|---:|")
+    worst, over, samples, worst_psnr = 0.0, 0, 0, float("inf")
+    print("| frame | channels | max relative difference | samples over tolerance | RGB PSNR (dB) |")
+    print("|---|---:|---:|---:|---:|")
     for fa in a_frames:
         fb = Path(b_dir) / fa.name
         if not fb.exists():
@@ -64,12 +67,15 @@ def compare(a_dir, b_dir, tolerance):
         a, b = read(fa), read(fb)
         if set(a) != set(b):
             sys.exit(f"gpu_check: {fa.name}: channels differ: {sorted(set(a) ^ set(b))}")
-        rel = 0.0
+        rel, frame_over, frame_samples = 0.0, 0, 0
         sq, n = 0.0, 0
         for name in a:
             x = a[name].astype(np.float64)
             y = b[name].astype(np.float64)
-            rel = max(rel, float(np.max(np.abs(x - y) / (np.abs(y) + 0.01))))
+            r = np.abs(x - y) / (np.abs(y) + 0.01)
+            rel = max(rel, float(np.max(r)))
+            frame_over += int(np.count_nonzero(r > tolerance))
+            frame_samples += r.size
             if name.rsplit(".", 1)[-1] in ("R", "G", "B"):
                 d = np.clip(x, 0, 1) - np.clip(y, 0, 1)
                 sq += float(np.sum(d * d))
@@ -77,10 +83,18 @@ def compare(a_dir, b_dir, tolerance):
         mse = sq / max(n, 1)
         psnr = float("inf") if mse == 0 else 10 * math.log10(1 / mse)
         worst = max(worst, rel)
-        print(f"| {fa.name} | {len(a)} | {rel:.2e} | {psnr:.1f} |")
-    verdict = "within" if worst <= tolerance else "OVER"
-    print(f"largest relative difference {worst:.2e}: {verdict} the tolerance {tolerance:.0e}")
-    sys.exit(0 if worst <= tolerance else 1)
+        worst_psnr = min(worst_psnr, psnr)
+        over += frame_over
+        samples += frame_samples
+        print(f"| {fa.name} | {len(a)} | {rel:.2e} | {frame_over} of {frame_samples} | {psnr:.1f} |")
+    share = over / max(samples, 1)
+    ok = share <= 1e-4 and worst_psnr >= 60
+    print(
+        f"largest relative difference {worst:.2e}; {share:.4%} of the samples over {tolerance:.0e} "
+        f"(at most 0.01% allowed); lowest PSNR {worst_psnr:.1f} dB (at least 60 allowed): "
+        + ("agree" if ok else "DISAGREE")
+    )
+    sys.exit(0 if ok else 1)
 
 
 if __name__ == "__main__":
