@@ -45,6 +45,20 @@ fn builtin(guided: bool) -> (&'static [u8], &'static str) {
     }
 }
 
+/// The network a command runs: the model `path` (or the compiled-in one `guide` calls for) on
+/// `device`, after checking that the model and the guide options fit each other.
+pub fn network_for(
+    path: Option<&Path>,
+    guide: &crate::input::GuideArgs,
+    device: radn_nn::device::ComputeDevice,
+) -> Result<radn_nn::infer::NetworkDenoiser> {
+    let device = device.open()?;
+    let guided = guide.guide.is_some();
+    let d = load_for(path, guided, &device)?;
+    guide.check_model(&d, &label_for(path, guided))?;
+    Ok(radn_nn::infer::NetworkDenoiser::new(d, device))
+}
+
 /// How a model choice is shown to the user: the file, or the compiled-in guided model for a
 /// run that asked for a guide (`guided`), else the compiled-in default.
 pub fn label_for(path: Option<&Path>, guided: bool) -> PathBuf {

@@ -246,13 +246,7 @@ pub fn run(a: Args) -> Result<()> {
 
 /// Loads the network method from the command-line options.
 fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
-    let device = a.device.open()?;
-    let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
-    a.guide.check_model(
-        &d,
-        &crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some()),
-    )?;
-    let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
+    let mut n = crate::model::network_for(a.model.as_deref(), &a.guide, a.device)?;
     if let Some(t) = a.threshold {
         let k = n.denoiser.config.kernel_taps() as f32;
         if !(0.0..1.0 / k).contains(&t) {

@@ -13,7 +13,6 @@ use radn_core::sequence::sequence_files;
 use radn_core::window::WindowReader;
 use radn_core::Plane;
 use radn_nn::infer::utilization::{write_heatmap, Utilization};
-use radn_nn::infer::NetworkDenoiser;
 
 use crate::input::{ChannelArgs, GuideArgs};
 
@@ -176,13 +175,7 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
         .iter()
         .position(|(f, _)| *f == display)
         .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
-    let device = a.device.open()?;
-    let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
-    a.guide.check_model(
-        &d,
-        &crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some()),
-    )?;
-    let net = NetworkDenoiser::new(d, device);
+    let net = crate::model::network_for(a.model.as_deref(), &a.guide, a.device)?;
     let mut reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
     let oidn = a.guide.apply(&mut reader)?;
     let paths: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
@@ -197,11 +190,8 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
 fn utilization(a: &Args) -> Result<()> {
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
-    let device = a.device.open()?;
-    let d = crate::model::load_for(a.model.as_deref(), a.guide.guide.is_some(), &device)?;
+    let net = crate::model::network_for(a.model.as_deref(), &a.guide, a.device)?;
     let model = crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some());
-    a.guide.check_model(&d, &model)?;
-    let net = NetworkDenoiser::new(d, device);
     let mut reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
     let oidn = a.guide.apply(&mut reader)?;
     let paths: Vec<PathBuf> = files.iter().map(|(_, p)| p.clone()).collect();
