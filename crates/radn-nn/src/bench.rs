@@ -11,6 +11,7 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Distribution, Tensor};
 
 use crate::model::config::NetConfig;
+use crate::model::cpu::conv::{conv_same_nchw_by, preferred_path, ConvPath};
 use crate::model::layers::{conv3, conv_flops};
 use crate::model::Denoiser;
 use crate::train::loss::smape;
@@ -191,6 +192,14 @@ pub struct ConvTiming {
     pub radn_ms: f64,
     /// Median milliseconds per call of burn's own convolution on the same device.
     pub burn_ms: f64,
+    /// Median milliseconds of the im2col + GEMM path alone, on host data
+    /// ([`crate::model::cpu::conv::ConvPath::Gemm`]).
+    pub gemm_ms: f64,
+    /// Median milliseconds of the direct AVX2 path alone, on host data
+    /// ([`crate::model::cpu::conv::ConvPath::Direct`]); `None` where the CPU lacks it.
+    pub direct_ms: Option<f64>,
+    /// The path radn's convolution takes for this shape on this CPU.
+    pub chosen: crate::model::cpu::conv::ConvPath,
     /// FLOPs of one call (multiply-adds count 2).
     pub flops: f64,
 }
@@ -199,6 +208,16 @@ impl ConvTiming {
     /// GFLOP/s of radn's path.
     pub fn radn_gflops(&self) -> f64 {
         self.flops / (self.radn_ms * 1e-3) / 1e9
+    }
+
+    /// GFLOP/s of the GEMM path alone.
+    pub fn gemm_gflops(&self) -> f64 {
+        self.flops / (self.gemm_ms * 1e-3) / 1e9
+    }
+
+    /// GFLOP/s of the direct path alone, where the CPU has it.
+    pub fn direct_gflops(&self) -> Option<f64> {
+        self.direct_ms.map(|ms| self.flops / (ms * 1e-3) / 1e9)
     }
 
     /// GFLOP/s of burn's path.
@@ -243,11 +262,38 @@ pub fn time_convs(
             let burn_ms = time(&|| {
                 let _ = conv.forward(x.clone()).into_data();
             });
+            let host = x
+                .clone()
+                .into_data()
+                .try_into_vec::<f32>()
+                .expect("f32 input");
+            let weight = conv
+                .weight
+                .val()
+                .into_data()
+                .try_into_vec::<f32>()
+                .expect("f32 weights");
+            let by = |path| {
+                time(&|| {
+                    let _ = conv_same_nchw_by(
+                        path,
+                        &host,
+                        [batch, cin, tile, tile],
+                        &weight,
+                        [cout, 3, 3],
+                        None,
+                        false,
+                    );
+                })
+            };
             ConvTiming {
                 cin,
                 cout,
                 radn_ms,
                 burn_ms,
+                gemm_ms: by(ConvPath::Gemm),
+                direct_ms: crate::model::cpu::direct::available().then(|| by(ConvPath::Direct)),
+                chosen: preferred_path([cin, cout, 3, 3]),
                 flops: batch as f64 * conv_flops(&conv, tile * tile),
             }
         })

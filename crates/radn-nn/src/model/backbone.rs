@@ -5,10 +5,10 @@ use burn::module::Module;
 use burn::nn::conv::Conv2d;
 use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
-use burn::tensor::{Device, Tensor};
+use burn::tensor::{Device, Tensor, TensorData};
 
 use crate::model::config::Backbone;
-use crate::model::cpu::conv::conv2d;
+use crate::model::cpu::conv::{conv2d, HostConv};
 use crate::model::layers::{conv3, conv_flops, widen_conv_input, DoubleConv, ResBlock};
 use crate::model::ra_block::RobustAverage;
 use crate::profile::{timed, Stage};
@@ -79,6 +79,14 @@ impl ResNet {
 
     /// `[batch · frames, input channels, H, W]` → head features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        if HostConv::applies(&self.input, &x.device()) {
+            return self.forward_on_host(x);
+        }
+        self.forward_with_burn(x)
+    }
+
+    /// [`ResNet::forward`] as burn operations (training, other backends).
+    fn forward_with_burn(&self, x: Tensor<4>) -> Tensor<4> {
         let mut h = conv2d(&self.input, x, true);
         let mut skips = Vec::new();
         let mut next_ra = 0;
@@ -94,6 +102,47 @@ impl ResNet {
         }
         skips.push(h);
         Tensor::cat(skips, 1)
+    }
+}
+
+impl ResNet {
+    /// [`ResNet::forward`] on `f32` slices for CPU inference: the latent maps stay on the host
+    /// from the input layer to the head, each residual add fused into its second
+    /// convolution, instead of a tensor round trip and a separate add per convolution.
+    fn forward_on_host(&self, x: Tensor<4>) -> Tensor<4> {
+        let device = x.device();
+        let [n, _, hh, ww] = x.dims();
+        let input = x.into_data();
+        let input = input.as_slice::<f32>().expect("f32 input");
+        let mut h = HostConv::of(&self.input).run(input, n, hh, ww, true);
+        let mut skips = Vec::new();
+        let mut next_ra = 0;
+        for (i, block) in self.blocks.iter().enumerate() {
+            block.forward_on_host(&mut h, [n, hh, ww]);
+            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i + 1 {
+                h = self.ra[next_ra].forward_on_host(&h, [n, self.width, hh, ww]);
+                if self.skips_from.contains(&(next_ra + 1)) {
+                    skips.push(h.clone());
+                }
+                next_ra += 1;
+            }
+        }
+        skips.push(h);
+        // per image, the maps of every skip then the last, along channels
+        let per_map = self.width * hh * ww;
+        let out = if skips.len() == 1 {
+            skips.pop().expect("one map")
+        } else {
+            let mut out = Vec::with_capacity(n * per_map * skips.len());
+            for image in 0..n {
+                for map in &skips {
+                    out.extend_from_slice(&map[image * per_map..][..per_map]);
+                }
+            }
+            out
+        };
+        let c = self.width * (self.skips_from.len() + 1);
+        Tensor::from_data(TensorData::new(out, [n, c, hh, ww]), &device)
     }
 }
 
@@ -312,5 +361,45 @@ impl FrameNet {
             FrameNet::ResNet(n) => widen_conv_input(&mut n.input, cin, device),
             FrameNet::UNet(n) => n.down[0].widen_input(cin, device),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_resnet_on_host_equals_its_tensor_path_with_skips_and_ra_blocks() {
+        let device = Device::flex();
+        // two RA blocks, a skip from the first: the host path's concatenation is exercised
+        let net = ResNet::new(7, 3, 16, &[1, 3], &[1], 5, &device);
+        let (n, h, w) = (10, 11, 19);
+        let x = Tensor::<4>::from_data(
+            TensorData::new(
+                (0..n * 7 * h * w)
+                    .map(|i| ((i * 7919) % 211) as f32 / 60.0 - 1.5)
+                    .collect::<Vec<f32>>(),
+                [n, 7, h, w],
+            ),
+            &device,
+        );
+        let host = net.forward(x.clone());
+        assert_eq!(host.dims(), [n, 32, h, w]);
+        let host = host.into_data().try_into_vec::<f32>().unwrap();
+        let burn = net
+            .forward_with_burn(x)
+            .into_data()
+            .try_into_vec::<f32>()
+            .unwrap();
+        let scale = burn.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+        assert!(scale > 0.1, "a test output of real size ({scale})");
+        let worst = host
+            .iter()
+            .zip(&burn)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(
+            worst <= 1e-5 * scale,
+            "host and tensor paths differ by {worst}"
+        );
     }
 }

@@ -1,6 +1,6 @@
 //! Small building blocks shared by the backbones.
 
-use crate::model::cpu::conv::conv2d;
+use crate::model::cpu::conv::{conv2d, HostConv};
 use burn::module::Module;
 use burn::nn::conv::{Conv2d, Conv2dConfig};
 use burn::nn::PaddingConfig2d;
@@ -69,6 +69,14 @@ impl ResBlock {
     /// Applies the block.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
         x.clone() + conv2d(&self.b, conv2d(&self.a, x, true), false)
+    }
+
+    /// [`ResBlock::forward`] in place on `n` host maps `h` (`[n, width, hh, ww]`) for CPU
+    /// inference, where both convolutions take the CPU path ([`HostConv::applies`]); the
+    /// residual add is fused into the second convolution.
+    pub fn forward_on_host(&self, h: &mut [f32], [n, hh, ww]: [usize; 3]) {
+        let a = HostConv::of(&self.a).run(h, n, hh, ww, true);
+        HostConv::of(&self.b).run_add(&a, n, hh, ww, h);
     }
 
     /// Forward FLOPs on a map of `pixels` pixels.

@@ -93,27 +93,36 @@ impl RobustAverage {
 
     fn forward_untimed(&self, h: Tensor<4>) -> Tensor<4> {
         let [bt, c, hh, ww] = h.dims();
-        let t = self.frames;
-        let b = bt / t;
         let device = h.device();
         if [&self.hidden_self, &self.hidden_avg, &self.weight]
             .iter()
             .all(|conv| HostConv::applies(conv, &device))
         {
-            let convs = RobustAverageConvs {
-                hidden_self: HostConv::of(&self.hidden_self),
-                hidden_avg: HostConv::of(&self.hidden_avg),
-                weight: HostConv::of(&self.weight),
-            };
             let data = h.into_data();
-            let out = robust_average(
+            let out = self.fused(
                 data.as_slice::<f32>().expect("f32 latent maps"),
-                [b, t, c, hh, ww],
-                &convs,
+                [bt, c, hh, ww],
             );
             return Tensor::from_data(TensorData::new(out, [bt, c, hh, ww]), &device);
         }
         self.forward_with_burn(h)
+    }
+
+    /// [`RobustAverage::forward`] on host latent maps `h` (`[batch · frames, c, hh, ww]`) for
+    /// CPU inference, where its convolutions take the CPU path ([`HostConv::applies`]).
+    pub fn forward_on_host(&self, h: &[f32], dims: [usize; 4]) -> Vec<f32> {
+        timed(Stage::RobustAverage, || self.fused(h, dims))
+    }
+
+    /// The fused CPU block ([`robust_average`]).
+    fn fused(&self, h: &[f32], [bt, c, hh, ww]: [usize; 4]) -> Vec<f32> {
+        let t = self.frames;
+        let convs = RobustAverageConvs {
+            hidden_self: HostConv::of(&self.hidden_self),
+            hidden_avg: HostConv::of(&self.hidden_avg),
+            weight: HostConv::of(&self.weight),
+        };
+        robust_average(h, [bt / t, t, c, hh, ww], &convs)
     }
 
     /// [`RobustAverage::forward`] as burn operations (training, other backends).

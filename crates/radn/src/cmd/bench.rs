@@ -121,22 +121,43 @@ fn net_config(preset: &str) -> Result<radn_nn::NetConfig> {
 fn convs(tile: usize, repeats: usize) -> Result<()> {
     let device = radn_nn::burn::tensor::Device::flex();
     let cin = crate::model::load(None, &device)?.config.input_channels();
-    // input layer, residual blocks, RA predictor (h_i and average halves, weight), kernel head
-    let shapes = [(cin, 32), (32, 32), (32, 16), (16, 1), (96, 25)];
+    // guided-lean has the built-in guided model's inputs
+    let gcin = crate::model::load_for(None, true, &device)?
+        .config
+        .input_channels();
+    // the default model's input layer, residual blocks, RA predictor (h_i and average halves,
+    // weight) and kernel head; then guided-lean's (width 16, 3×3 taps): input layer, residual
+    // blocks, RA predictor, kernel heads and blend heads
+    let shapes = [
+        (cin, 32),
+        (32, 32),
+        (32, 16),
+        (16, 1),
+        (96, 25),
+        (gcin, 16),
+        (16, 16),
+        (16, 8),
+        (8, 1),
+        (16, 9),
+    ];
     println!(
         "3x3 convolutions on 5 x {tile}x{tile} maps, inference, {} threads (median of {repeats}):",
         rayon::current_num_threads()
     );
-    println!("| cin → cout | radn ms | radn GFLOP/s | burn ms | burn GFLOP/s | speed-up |");
-    println!("| --- | ---: | ---: | ---: | ---: | ---: |");
+    println!("| cin → cout | radn ms | radn GFLOP/s | path | im2col+GEMM GFLOP/s | direct GFLOP/s | burn ms | burn GFLOP/s | speed-up |");
+    println!("| --- | ---: | ---: | --- | ---: | ---: | ---: | ---: | ---: |");
     let timings = radn_nn::bench::time_convs(&shapes, 5, tile, repeats.max(1), &device);
     for t in timings {
         println!(
-            "| {} → {} | {:.0} | {:.1} | {:.0} | {:.1} | {:.2} |",
+            "| {} → {} | {:.0} | {:.1} | {:?} | {:.1} | {} | {:.0} | {:.1} | {:.2} |",
             t.cin,
             t.cout,
             t.radn_ms,
             t.radn_gflops(),
+            t.chosen,
+            t.gemm_gflops(),
+            t.direct_gflops()
+                .map_or("–".to_string(), |g| format!("{g:.1}")),
             t.burn_ms,
             t.burn_gflops(),
             t.burn_ms / t.radn_ms

@@ -16,7 +16,7 @@ use burn::tensor::activation::relu;
 use burn::tensor::{Device, Tensor, TensorData};
 use rayon::prelude::*;
 
-use crate::model::cpu::{is_cpu_inference, SendPtr};
+use crate::model::cpu::{direct, is_cpu_inference, SendPtr};
 
 /// Floats of one im2col block (1 MiB): its columns stay within a core's L2 cache while the GEMM
 /// packs them. The block's pixel count follows from the layer's K = cin · kh · kw, within
@@ -85,6 +85,8 @@ pub struct HostConv {
     cout: usize,
     cin: usize,
     kernel: [usize; 2],
+    /// The weights packed for the direct path, where this CPU takes it.
+    packed: Option<direct::PackedWeights>,
 }
 
 impl HostConv {
@@ -94,12 +96,17 @@ impl HostConv {
         let weight = conv.weight.val();
         let [cout, cin, kh, kw] = weight.dims();
         let data = |t: TensorData| t.try_into_vec::<f32>().expect("f32 weights");
+        let weight = data(weight.into_data());
+        let bias = conv.bias.as_ref().map(|b| data(b.val().into_data()));
+        let packed = (preferred_path([cin, cout, kh, kw]) == ConvPath::Direct)
+            .then(|| direct::PackedWeights::new(&weight, bias.as_deref(), [cout, cin, kh, kw]));
         Self {
-            weight: data(weight.into_data()),
-            bias: conv.bias.as_ref().map(|b| data(b.val().into_data())),
+            weight,
+            bias,
             cout,
             cin,
             kernel: [kh, kw],
+            packed,
         }
     }
 
@@ -115,6 +122,9 @@ impl HostConv {
 
     /// The convolution of `b` images `[b, cin, h, w]`, then a ReLU when `relu_after`.
     pub fn run(&self, x: &[f32], b: usize, h: usize, w: usize, relu_after: bool) -> Vec<f32> {
+        if let Some(packed) = &self.packed {
+            return direct::conv_same_direct(x, [b, self.cin, h, w], packed, relu_after);
+        }
         let [kh, kw] = self.kernel;
         conv_same_nchw(
             x,
@@ -124,6 +134,21 @@ impl HostConv {
             self.bias.as_deref(),
             relu_after,
         )
+    }
+}
+
+impl HostConv {
+    /// `out += conv(x)` for `b` images `x` (`[b, cin, h, w]`) and `out` (`[b, cout, h, w]`):
+    /// a residual block's add, fused into the convolution's stores on the direct path.
+    pub fn run_add(&self, x: &[f32], b: usize, h: usize, w: usize, out: &mut [f32]) {
+        assert_eq!(out.len(), b * self.cout * h * w, "output size");
+        match &self.packed {
+            Some(packed) => direct::conv_same_direct_add(x, [b, self.cin, h, w], packed, out),
+            None => {
+                let y = self.run(x, b, h, w, false);
+                out.par_iter_mut().zip(&y).for_each(|(o, v)| *o += v);
+            }
+        }
     }
 }
 
@@ -137,8 +162,60 @@ pub fn conv_same_nchw(
     bias: Option<&[f32]>,
     relu_after: bool,
 ) -> Vec<f32> {
+    conv_same_nchw_by(
+        preferred_path([cin, cout, kh, kw]),
+        x,
+        [b, cin, h, w],
+        weight,
+        [cout, kh, kw],
+        bias,
+        relu_after,
+    )
+}
+
+/// How a convolution is computed on the CPU.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ConvPath {
+    /// Blocked im2col + one GEMM per block (any CPU).
+    Gemm,
+    /// Accumulated in registers with AVX2 and FMA ([`super::direct`]).
+    Direct,
+}
+
+/// The path for a layer of shape `[cin, cout, kh, kw]` on this CPU: the direct one wherever
+/// the CPU has AVX2 and FMA. `radn bench --convs` times both on every layer shape of the shipped
+/// models; the direct path was the faster on each (docs/benchmarks.md). The environment
+/// variable `RADN_CPU_CONV=gemm` keeps the GEMM path everywhere (to compare whole runs, or for
+/// a CPU where it measures faster).
+pub fn preferred_path(_shape: [usize; 4]) -> ConvPath {
+    static DIRECT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    let direct = *DIRECT.get_or_init(|| {
+        direct::available() && std::env::var("RADN_CPU_CONV").map_or(true, |v| v != "gemm")
+    });
+    if direct {
+        ConvPath::Direct
+    } else {
+        ConvPath::Gemm
+    }
+}
+
+/// [`conv_same_nchw`] by the given path ([`ConvPath::Direct`] only where
+/// [`direct::available`]).
+pub fn conv_same_nchw_by(
+    path: ConvPath,
+    x: &[f32],
+    [b, cin, h, w]: [usize; 4],
+    weight: &[f32],
+    [cout, kh, kw]: [usize; 3],
+    bias: Option<&[f32]>,
+    relu_after: bool,
+) -> Vec<f32> {
     assert_eq!(x.len(), b * cin * h * w, "input size");
     assert_eq!(weight.len(), cout * cin * kh * kw, "weight size");
+    if path == ConvPath::Direct {
+        let packed = direct::PackedWeights::new(weight, bias, [cout, cin, kh, kw]);
+        return direct::conv_same_direct(x, [b, cin, h, w], &packed, relu_after);
+    }
     let k = cin * kh * kw;
     let plane = h * w;
     let mut out = vec![0.0f32; b * cout * plane];

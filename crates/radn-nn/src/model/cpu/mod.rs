@@ -8,6 +8,7 @@
 
 pub mod apply;
 pub mod conv;
+pub mod direct;
 pub mod eta;
 pub mod pool;
 pub mod ra;

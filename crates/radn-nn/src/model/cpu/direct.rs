@@ -1,0 +1,422 @@
+//! Same-size convolutions of narrow layers computed directly with AVX2 and FMA: each output
+//! vector of pixels is accumulated in registers over every input channel and kernel tap, reading
+//! the input rows in place (through a zero-padded slab of a few rows per job), with no im2col
+//! copy and no GEMM packing.
+//!
+//! Why: at the guided models' width (16 channels) a 3×3 layer has K = 144 and 16 output rows,
+//! too small for the GEMM to amortise its im2col columns (144 floats written and read per pixel)
+//! and its packing; the blocked im2col + GEMM path of [`super::conv`] reached 42 GFLOP/s there
+//! against 125 at width 32 (docs/benchmarks.md). Computing in registers needs one load per
+//! input value and tap, shared by [`CHANNELS`] output channels. The result is the same function
+//! (equal to the GEMM path's to float rounding, tested); it runs where the CPU has AVX2 and FMA,
+//! and [`super::conv`] chooses it per layer shape (measured by `radn bench --convs`).
+
+#[cfg(target_arch = "x86_64")]
+use std::arch::x86_64::*;
+
+use rayon::prelude::*;
+
+use crate::model::cpu::SendPtr;
+
+/// Output channels that share each loaded input vector (one register of accumulators each per
+/// pixel vector).
+pub const CHANNELS: usize = 4;
+/// Pixel vectors (8 floats each) per micro-kernel call: 16 pixels of [`CHANNELS`] channels are
+/// 8 accumulator registers, leaving room for the loads and the broadcast weight.
+const VECTORS: usize = 2;
+/// Pixels per micro-kernel call.
+const PIXELS: usize = VECTORS * 8;
+/// Output rows per parallel job: the job's padded slab (its rows plus the kernel's reach above
+/// and below, every input channel) stays within a core's L2 cache for the narrow layers.
+const ROWS_PER_JOB: usize = 4;
+
+/// Whether this CPU runs the direct path (x86-64 with AVX2 and FMA, detected at run time).
+pub fn available() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+/// A convolution's weights in the micro-kernel's order: per block of [`CHANNELS`] output
+/// channels, `[cin][kh][kw][CHANNELS]` (zero beyond `cout`), and the bias per block.
+pub struct PackedWeights {
+    weights: Vec<f32>,
+    bias: Vec<f32>,
+    cout: usize,
+    cin: usize,
+    kernel: [usize; 2],
+}
+
+impl PackedWeights {
+    /// Packs `weight` (`[cout, cin, kh, kw]`, row-major, odd sizes) and `bias` (`[cout]`).
+    pub fn new(weight: &[f32], bias: Option<&[f32]>, [cout, cin, kh, kw]: [usize; 4]) -> Self {
+        assert_eq!(weight.len(), cout * cin * kh * kw, "weight size");
+        assert!(kh % 2 == 1 && kw % 2 == 1, "odd kernel sizes");
+        let blocks = cout.div_ceil(CHANNELS);
+        let per_block = cin * kh * kw * CHANNELS;
+        let mut weights = vec![0.0f32; blocks * per_block];
+        for co in 0..cout {
+            let (block, lane) = (co / CHANNELS, co % CHANNELS);
+            for ci in 0..cin {
+                for t in 0..kh * kw {
+                    weights[block * per_block + (ci * kh * kw + t) * CHANNELS + lane] =
+                        weight[(co * cin + ci) * kh * kw + t];
+                }
+            }
+        }
+        let mut padded_bias = vec![0.0f32; blocks * CHANNELS];
+        if let Some(b) = bias {
+            assert_eq!(b.len(), cout, "bias size");
+            padded_bias[..cout].copy_from_slice(b);
+        }
+        Self {
+            weights,
+            bias: padded_bias,
+            cout,
+            cin,
+            kernel: [kh, kw],
+        }
+    }
+}
+
+/// What the direct path does with each result value.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Write {
+    /// Stores it, after a ReLU when `relu` is set.
+    Set {
+        /// Whether a ReLU follows the convolution.
+        relu: bool,
+    },
+    /// Adds it to the value already there (a residual block's `x + conv(...)`).
+    Add,
+}
+
+/// The convolution of `b` images `x` (`[b, cin, h, w]`) with zero padding that keeps the size,
+/// then a ReLU when `relu_after`: `[b, cout, h, w]`.
+///
+/// # Panics
+/// When the CPU lacks AVX2 or FMA ([`available`]) or the sizes do not match.
+pub fn conv_same_direct(
+    x: &[f32],
+    dims: [usize; 4],
+    packed: &PackedWeights,
+    relu_after: bool,
+) -> Vec<f32> {
+    let [b, _, h, w] = dims;
+    let len = b * packed.cout * h * w;
+    let mut out = Vec::with_capacity(len);
+    // SAFETY: `out` has room for `len` floats, and the convolution writes every one of them
+    // (every row of every output channel of every image) before the length is set.
+    unsafe {
+        conv_same_direct_into(
+            x,
+            dims,
+            packed,
+            Write::Set { relu: relu_after },
+            out.as_mut_ptr(),
+        );
+        out.set_len(len);
+    }
+    out
+}
+
+/// `out += conv(x)` for `b` images `x` (`[b, cin, h, w]`) and `out` (`[b, cout, h, w]`): the
+/// residual add fused into the convolution's stores.
+///
+/// # Panics
+/// When the CPU lacks AVX2 or FMA ([`available`]) or the sizes do not match.
+pub fn conv_same_direct_add(x: &[f32], dims: [usize; 4], packed: &PackedWeights, out: &mut [f32]) {
+    let [b, _, h, w] = dims;
+    assert_eq!(out.len(), b * packed.cout * h * w, "output size");
+    // SAFETY: `out` holds exactly the `[b, cout, h, w]` values the convolution adds to.
+    unsafe { conv_same_direct_into(x, dims, packed, Write::Add, out.as_mut_ptr()) }
+}
+
+/// The convolution written through `out` by `write`.
+///
+/// # Safety
+/// `out` must be valid for writes (and, for [`Write::Add`], reads of initialised values) of
+/// `b · cout · h · w` floats that nothing else accesses during the call.
+unsafe fn conv_same_direct_into(
+    x: &[f32],
+    [b, cin, h, w]: [usize; 4],
+    packed: &PackedWeights,
+    write: Write,
+    out: *mut f32,
+) {
+    assert!(available(), "the direct convolution needs AVX2 and FMA");
+    assert_eq!(cin, packed.cin, "input channels");
+    assert_eq!(x.len(), b * cin * h * w, "input size");
+    let cout = packed.cout;
+    if h == 0 || w == 0 || cout == 0 || b == 0 {
+        return;
+    }
+    let [kh, kw] = packed.kernel;
+    let (ry, rx) = (kh / 2, kw / 2);
+    // slab columns: the kernel's reach left, the row, and enough beyond it that every vector
+    // load of the last (partial) pixel block stays inside
+    let slab_w = w.div_ceil(PIXELS) * PIXELS + 2 * rx;
+    let slab_rows = ROWS_PER_JOB + 2 * ry;
+    let jobs_per_image = h.div_ceil(ROWS_PER_JOB);
+    let plane = h * w;
+    let out_ptr = SendPtr(out);
+    (0..b * jobs_per_image)
+        .into_par_iter()
+        .for_each_init(Vec::new, |slab: &mut Vec<f32>, job| {
+            let (image, chunk) = (job / jobs_per_image, job % jobs_per_image);
+            let y0 = chunk * ROWS_PER_JOB;
+            let y1 = (y0 + ROWS_PER_JOB).min(h);
+            let src = &x[image * cin * plane..][..cin * plane];
+            fill_slab(slab, src, [cin, h, w], [ry, rx], slab_w, slab_rows, y0);
+            let dst = out_ptr.get().wrapping_add(image * cout * plane);
+            for y in y0..y1 {
+                // SAFETY: `available()` was checked; the slab holds rows y - ry ..= y + ry of
+                // every channel (zero beyond the image) at row `y - y0 + ry`, each `slab_w`
+                // floats with every load of a pixel block in range; the jobs write disjoint
+                // rows of each output plane, all within `out` (the caller's promise).
+                unsafe {
+                    conv_row(
+                        slab.as_ptr().add((y - y0) * slab_w),
+                        [slab_rows * slab_w, slab_w],
+                        packed,
+                        write,
+                        dst.add(y * w),
+                        [plane, w],
+                    );
+                }
+            }
+        });
+}
+
+/// Copies the rows `y0 - ry .. y0 + ROWS_PER_JOB + ry` of every channel of `src` into `slab`
+/// (`cin` planes of `slab_rows × slab_w`), shifted right by `rx` and zero outside the image.
+fn fill_slab(
+    slab: &mut Vec<f32>,
+    src: &[f32],
+    [cin, h, w]: [usize; 3],
+    [ry, rx]: [usize; 2],
+    slab_w: usize,
+    slab_rows: usize,
+    y0: usize,
+) {
+    slab.clear();
+    slab.resize(cin * slab_rows * slab_w, 0.0);
+    for c in 0..cin {
+        for sy in 0..slab_rows {
+            let y = (y0 + sy) as isize - ry as isize;
+            if y < 0 || y >= h as isize {
+                continue;
+            }
+            let from = &src[(c * h + y as usize) * w..][..w];
+            slab[(c * slab_rows + sy) * slab_w + rx..][..w].copy_from_slice(from);
+        }
+    }
+}
+
+/// One output row of every output channel: `src` points at the slab row `kh/2` above the output
+/// row, channels `src_stride[0]` floats apart and rows `src_stride[1]`; `dst` at the output row
+/// of channel 0, channels `dst_stride[0]` apart, `dst_stride[1]` (the width) pixels written.
+///
+/// # Safety
+/// AVX2 and FMA must be available; the slab must hold `kh` rows of every channel with
+/// `ceil(w / PIXELS) · PIXELS + kw − 1` readable floats each, and `dst` must be valid for the
+/// row of every output channel.
+#[cfg(target_arch = "x86_64")]
+unsafe fn conv_row(
+    src: *const f32,
+    src_stride: [usize; 2],
+    packed: &PackedWeights,
+    write: Write,
+    dst: *mut f32,
+    [dst_plane, w]: [usize; 2],
+) {
+    let relu_after = write == Write::Set { relu: true };
+    let blocks = packed.cout.div_ceil(CHANNELS);
+    let per_block = packed.cin * packed.kernel[0] * packed.kernel[1] * CHANNELS;
+    for x0 in (0..w).step_by(PIXELS) {
+        for block in 0..blocks {
+            let mut acc = [[0.0f32; PIXELS]; CHANNELS];
+            // SAFETY: the caller's promise; the block's weights and bias are in range.
+            unsafe {
+                micro_kernel(
+                    src.add(x0),
+                    src_stride,
+                    packed.cin,
+                    packed.kernel,
+                    packed.weights.as_ptr().add(block * per_block),
+                    packed.bias.as_ptr().add(block * CHANNELS),
+                    relu_after,
+                    &mut acc,
+                );
+            }
+            let n = PIXELS.min(w - x0);
+            let channels = CHANNELS.min(packed.cout - block * CHANNELS);
+            for (lane, values) in acc.iter().enumerate().take(channels) {
+                let co = block * CHANNELS + lane;
+                // SAFETY: output row of channel `co`, pixels x0 .. x0 + n <= w.
+                unsafe {
+                    let to = dst.add(co * dst_plane + x0);
+                    if write == Write::Add {
+                        for (i, v) in values[..n].iter().enumerate() {
+                            *to.add(i) += v;
+                        }
+                    } else {
+                        std::ptr::copy_nonoverlapping(values.as_ptr(), to, n);
+                    }
+                }
+            }
+        }
+    }
+}
+
+#[cfg(not(target_arch = "x86_64"))]
+unsafe fn conv_row(
+    _src: *const f32,
+    _src_stride: [usize; 2],
+    _packed: &PackedWeights,
+    _write: Write,
+    _dst: *mut f32,
+    _dst_stride: [usize; 2],
+) {
+    unreachable!("the direct convolution runs only on x86-64 ([`available`])");
+}
+
+/// [`PIXELS`] consecutive output pixels of [`CHANNELS`] output channels, accumulated in
+/// registers over every input channel and tap, plus the bias, then the optional ReLU.
+///
+/// # Safety
+/// AVX2 and FMA must be available; `src` must be readable for `kh` rows (`src_stride[1]` apart)
+/// of `cin` channels (`src_stride[0]` apart), `PIXELS + kw − 1` floats each; `weights` for
+/// `cin · kh · kw · CHANNELS` floats and `bias` for `CHANNELS`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx2,fma")]
+#[allow(clippy::too_many_arguments)]
+unsafe fn micro_kernel(
+    src: *const f32,
+    [channel_stride, row_stride]: [usize; 2],
+    cin: usize,
+    [kh, kw]: [usize; 2],
+    weights: *const f32,
+    bias: *const f32,
+    relu_after: bool,
+    out: &mut [[f32; PIXELS]; CHANNELS],
+) {
+    // SAFETY: every pointer offset below stays within the ranges the caller promises.
+    unsafe {
+        let mut acc = [[_mm256_setzero_ps(); VECTORS]; CHANNELS];
+        for (lane, row) in acc.iter_mut().enumerate() {
+            let b = _mm256_broadcast_ss(&*bias.add(lane));
+            *row = [b; VECTORS];
+        }
+        let mut wp = weights;
+        for ci in 0..cin {
+            for ky in 0..kh {
+                let row = src.add(ci * channel_stride + ky * row_stride);
+                for kx in 0..kw {
+                    let p = row.add(kx);
+                    let mut v = [_mm256_setzero_ps(); VECTORS];
+                    for (j, vj) in v.iter_mut().enumerate() {
+                        *vj = _mm256_loadu_ps(p.add(8 * j));
+                    }
+                    for (lane, a) in acc.iter_mut().enumerate() {
+                        let wv = _mm256_broadcast_ss(&*wp.add(lane));
+                        for j in 0..VECTORS {
+                            a[j] = _mm256_fmadd_ps(wv, v[j], a[j]);
+                        }
+                    }
+                    wp = wp.add(CHANNELS);
+                }
+            }
+        }
+        let zero = _mm256_setzero_ps();
+        for (lane, a) in acc.iter().enumerate() {
+            for (j, &v) in a.iter().enumerate() {
+                let v = if relu_after {
+                    _mm256_max_ps(v, zero)
+                } else {
+                    v
+                };
+                _mm256_storeu_ps(out[lane].as_mut_ptr().add(8 * j), v);
+            }
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::model::cpu::conv::{conv_same_nchw_by, ConvPath};
+
+    fn values(n: usize, seed: usize) -> Vec<f32> {
+        (0..n)
+            .map(|i| ((i * 7919 + seed * 104_729) % 1000) as f32 / 500.0 - 1.0)
+            .collect()
+    }
+
+    #[test]
+    fn the_direct_convolution_equals_the_gemm_path() {
+        if !available() {
+            eprintln!("SKIPPED: this CPU has no AVX2 and FMA");
+            return;
+        }
+        // the guided models' shapes and odd ones: widths that leave a partial pixel block,
+        // output channels that leave a partial channel block, 1×1 and 5×5 kernels, a 1×1 map,
+        // maps lower than the kernel's reach and than a job's rows
+        for (b, cin, cout, k, h, w, relu_after, bias) in [
+            (5, 16, 16, 3, 23, 37, true, true),
+            (2, 19, 16, 3, 9, 16, true, true),
+            (2, 16, 8, 3, 5, 33, false, false),
+            (3, 8, 1, 3, 7, 21, false, true),
+            (2, 16, 9, 3, 6, 50, false, true),
+            (1, 13, 3, 3, 1, 1, true, true),
+            (2, 5, 7, 5, 11, 6, false, true),
+            (1, 8, 6, 1, 7, 9, true, false),
+            (1, 4, 5, 3, 2, 3, false, true),
+        ] {
+            let x = values(b * cin * h * w, 3);
+            let weight = values(cout * cin * k * k, 5);
+            let bias = bias.then(|| values(cout, 7));
+            let run = |path| {
+                conv_same_nchw_by(
+                    path,
+                    &x,
+                    [b, cin, h, w],
+                    &weight,
+                    [cout, k, k],
+                    bias.as_deref(),
+                    relu_after,
+                )
+            };
+            let (want, got) = (run(ConvPath::Gemm), run(ConvPath::Direct));
+            assert_eq!(got.len(), want.len());
+            let scale = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 0.1, "a test output of real size");
+            let worst = got
+                .iter()
+                .zip(&want)
+                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
+                / scale;
+            assert!(
+                worst < 1e-5,
+                "{b}×{cin}→{cout} {k}×{k} on {w}×{h}: relative difference {worst}"
+            );
+        }
+    }
+
+    #[test]
+    fn packed_weights_put_each_output_channel_in_its_lane() {
+        // cout 5 = one full block and one with a single channel; cin 2, 1×1 kernels
+        let weight: Vec<f32> = (0..10).map(|i| i as f32).collect();
+        let p = PackedWeights::new(&weight, Some(&[1.0, 2.0, 3.0, 4.0, 5.0]), [5, 2, 1, 1]);
+        // block 0: [ci][lane] = weight[co][ci]
+        assert_eq!(&p.weights[..8], &[0.0, 2.0, 4.0, 6.0, 1.0, 3.0, 5.0, 7.0]);
+        // block 1: channel 4 in lane 0, the rest zero
+        assert_eq!(&p.weights[8..], &[8.0, 0.0, 0.0, 0.0, 9.0, 0.0, 0.0, 0.0]);
+        assert_eq!(p.bias, vec![1.0, 2.0, 3.0, 4.0, 5.0, 0.0, 0.0, 0.0]);
+    }
+}
