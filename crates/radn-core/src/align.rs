@@ -8,7 +8,7 @@ use crate::confidence::{confidence, ConfidenceParams, Guides};
 use crate::frame::Frame;
 use crate::motion::{compose_bands, invert_band, on_screen, round_trip_error_bands};
 use crate::plane::Plane;
-use crate::warp::{mix_with_centre, warp_band};
+use crate::warp::{mix_with_centre, warp_band, warp_bands};
 
 /// Options for aligning a window.
 #[derive(Clone, Copy, Debug)]
@@ -166,11 +166,28 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 tf.normal.as_ref(),
                 tf.depth.as_ref(),
             );
-            let warp = |p: &Plane| warp_band(to.of(p), flow_c);
+            // every plane of the frame along one flow, the taps computed once per pixel
+            let mut srcs = vec![to.of(&guides_w.color), to.of(&tf.color)];
+            let optional = [
+                guides_w.albedo.as_ref(),
+                guides_w.normal.as_ref(),
+                tf.alpha.as_ref(),
+                tf.albedo.as_ref(),
+                tf.normal.as_ref(),
+                tf.guide.as_ref(),
+            ];
+            srcs.extend(optional.iter().flatten().map(|p| to.of(p)));
+            srcs.extend(tf.aovs.iter().map(|a| to.of(&a.plane)));
+            let mut warped = warp_bands(&srcs, flow_c).into_iter();
+            let mut next = || warped.next().expect("one warped plane per source");
+            let (guide_color, color) = (next(), next());
+            let mut optional = optional.map(|p| p.map(|_| next()));
+            let aovs: Vec<Plane> = tf.aovs.iter().map(|_| next()).collect();
+            let mut take = |i: usize| optional[i].take();
             let warped_guides = Guides {
-                color: warp(&guides_w.color),
-                albedo: guides_w.albedo.as_ref().map(warp),
-                normal: guides_w.normal.as_ref().map(warp),
+                color: guide_color,
+                albedo: take(0),
+                normal: take(1),
                 depth: guides_w
                     .depth
                     .as_ref()
@@ -186,13 +203,13 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
             );
             let mut f = AlignedFrame {
                 offset: dir * step as i32,
-                color: warp(&tf.color),
-                alpha: tf.alpha.as_ref().map(warp),
-                albedo: tf.albedo.as_ref().map(warp),
-                normal: tf.normal.as_ref().map(warp),
+                color,
+                alpha: take(2),
+                albedo: take(3),
+                normal: take(4),
                 depth: warped_guides.depth,
-                aovs: tf.aovs.iter().map(|a| warp(&a.plane)).collect(),
-                guide: tf.guide.as_ref().map(warp),
+                aovs,
+                guide: take(5),
                 confidence: conf,
                 flow: flow.clone(),
             };
