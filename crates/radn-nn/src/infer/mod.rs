@@ -50,14 +50,47 @@ pub struct NetworkDenoiser {
     pub refine: Option<InputBlend>,
 }
 
+/// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
+const MIN_AUTO_TILE: usize = 256;
+/// Largest tile [`auto_tile`] picks.
+const MAX_AUTO_TILE: usize = 1024;
+/// Bytes the widest per-tile map (features of every frame, or the kernel weights) may take
+/// for [`auto_tile`] to double the tile: a few such maps are alive at once.
+const AUTO_TILE_MAP_BYTES: usize = 128 << 20;
+
+/// The output tile for `denoiser` when the user does not choose one: the largest of 256, 512
+/// and 1024 pixels whose widest map (all frames' head features, or the kernel weights, over the
+/// tile and its halo) stays within 128 MiB, and 256 at least. A tile computes its halo again,
+/// so larger tiles do less work: measured on guided-lean at 1080p, 512-pixel tiles took 19.6 s
+/// per window against 24.8 s with 256 (docs/benchmarks.md), where the default model's widest
+/// map at 512 would be several hundred MB.
+pub fn auto_tile(denoiser: &Denoiser) -> usize {
+    let Some(halo) = denoiser.receptive_radius() else {
+        return MIN_AUTO_TILE; // a UNet runs whole frames whatever the tile
+    };
+    let per_pixel = (denoiser.config.frames * denoiser.feature_channels())
+        .max(denoiser.config.kernel_taps())
+        * std::mem::size_of::<f32>();
+    let mut tile = MIN_AUTO_TILE;
+    while tile * 2 <= MAX_AUTO_TILE {
+        let side = tile * 2 + 2 * halo;
+        if side * side * per_pixel > AUTO_TILE_MAP_BYTES {
+            break;
+        }
+        tile *= 2;
+    }
+    tile
+}
+
 impl NetworkDenoiser {
-    /// A denoiser with the model's default threshold and 256-pixel tiles.
+    /// A denoiser with the model's default threshold and its [`auto_tile`].
     pub fn new(denoiser: Denoiser, device: Device) -> Self {
         let threshold = denoiser.config.default_threshold();
+        let tile = auto_tile(&denoiser);
         Self {
             denoiser,
             threshold,
-            tile: 256,
+            tile,
             batch: 1,
             device,
             align: AlignParams::default(),
@@ -484,6 +517,21 @@ mod tests {
         .iter()
         .flat_map(|(a, b)| a.data().iter().zip(b.data()).map(|(x, y)| (x - y).abs()))
         .fold(0.0f32, f32::max)
+    }
+
+    #[test]
+    fn the_automatic_tile_doubles_only_for_narrow_networks() {
+        let auto = |toml: &str| {
+            let cfg = NetConfig::parse(toml).unwrap();
+            auto_tile(&Denoiser::new(cfg, &Device::flex()))
+        };
+        let narrow = include_str!("../../../../configs/nets/guided-lean.toml");
+        // 5 frames × 16 channels × (512 + 2 · 36)² px × 4 B = 109 MB: 512; 1024 would be 384 MB
+        assert_eq!(auto(narrow), 512);
+        // the default model's width (32, 96 head channels with its skips) keeps 256
+        let wide = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+        assert_eq!(auto_tile(&wide), 256);
+        assert_eq!(NetworkDenoiser::new(wide, Device::flex()).tile, 256);
     }
 
     #[test]

@@ -272,6 +272,15 @@ impl Denoiser {
             .expect("collecting parameters into memory cannot fail");
     }
 
+    /// Channels per frame of the features the heads read (the backbone's output).
+    pub fn feature_channels(&self) -> usize {
+        match &self.net {
+            Network::Ra(n) => n.backbone.out_channels(),
+            Network::Tkpcn(n) => n.backbone.out_channels(),
+            Network::Spatial(n) => n.backbone.out_channels(),
+        }
+    }
+
     /// The RA blocks of the network (none for the baselines).
     pub fn ra_blocks(&self) -> Vec<&crate::model::ra_block::RobustAverage> {
         match &self.net {

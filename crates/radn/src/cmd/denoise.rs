@@ -90,8 +90,10 @@ pub struct Args {
     /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
     /// the result does not depend on it). Frames are also read, aligned and written in bands of
     /// this many rows, so memory follows the tile, not the frame; 0 processes whole frames.
-    #[arg(long, default_value_t = 256)]
-    pub tile: usize,
+    /// `auto`: the model's own choice, 256 for the default model and 512 for a narrow one such
+    /// as guided-lean (whose tiles then recompute less halo).
+    #[arg(long, default_value = "auto", value_parser = parse_tile)]
+    pub tile: TileChoice,
     /// Network: tiles of equal size per network call. 1 is fastest on a CPU (measured in
     /// docs/benchmarks.md); larger batches hold that many tiles' activations at once.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
@@ -257,13 +259,30 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         }
         n.threshold = t;
     }
-    n.tile = a.tile;
+    if let TileChoice(Some(tile)) = a.tile {
+        n.tile = tile;
+    }
     n.batch = a.batch as usize;
     n.refine = a.input_blend.0.map(|strength| InputBlend {
         radius: a.input_blend_radius,
         strength,
     });
     Ok(n)
+}
+
+/// `--tile`'s value: a size in pixels, `None` for `auto` (the model's own,
+/// [`radn_nn::infer::auto_tile`]).
+#[derive(Clone, Copy, Debug)]
+pub struct TileChoice(pub Option<usize>);
+
+/// Parses `--tile`: `auto` or a size in pixels (0: whole frames).
+fn parse_tile(s: &str) -> Result<TileChoice, String> {
+    if s == "auto" {
+        return Ok(TileChoice(None));
+    }
+    s.parse::<usize>()
+        .map(|t| TileChoice(Some(t)))
+        .map_err(|_| format!("'{s}' is not auto or a tile size in pixels"))
 }
 
 /// `--input-blend`'s value: how the noise scale is chosen, `None` for `off`.
