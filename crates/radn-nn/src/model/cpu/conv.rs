@@ -420,6 +420,56 @@ mod tests {
     }
 
     #[test]
+    fn the_direct_convolution_equals_the_gemm_path() {
+        if !direct::available() {
+            eprintln!("SKIPPED: this CPU has no AVX2 and FMA");
+            return;
+        }
+        // the guided models' shapes and odd ones: widths that leave a partial pixel block,
+        // output channels that leave a partial channel block, 1×1 and 5×5 kernels, a 1×1 map,
+        // maps lower than the kernel's reach and than a job's rows
+        for (b, cin, cout, k, h, w, relu_after, bias) in [
+            (5, 16, 16, 3, 23, 37, true, true),
+            (2, 19, 16, 3, 9, 16, true, true),
+            (2, 16, 8, 3, 5, 33, false, false),
+            (3, 8, 1, 3, 7, 21, false, true),
+            (2, 16, 9, 3, 6, 50, false, true),
+            (1, 13, 3, 3, 1, 1, true, true),
+            (2, 5, 7, 5, 11, 6, false, true),
+            (1, 8, 6, 1, 7, 9, true, false),
+            (1, 4, 5, 3, 2, 3, false, true),
+        ] {
+            let x = values(b * cin * h * w, 3);
+            let weight = values(cout * cin * k * k, 5);
+            let bias = bias.then(|| values(cout, 7));
+            let run = |path| {
+                conv_same_nchw_by(
+                    path,
+                    &x,
+                    [b, cin, h, w],
+                    &weight,
+                    [cout, k, k],
+                    bias.as_deref(),
+                    relu_after,
+                )
+            };
+            let (want, got) = (run(ConvPath::Gemm), run(ConvPath::Direct));
+            assert_eq!(got.len(), want.len());
+            let scale = want.iter().fold(0.0f32, |m, v| m.max(v.abs()));
+            assert!(scale > 0.1, "a test output of real size");
+            let worst = got
+                .iter()
+                .zip(&want)
+                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()))
+                / scale;
+            assert!(
+                worst < 1e-5,
+                "{b}×{cin}→{cout} {k}×{k} on {w}×{h}: relative difference {worst}"
+            );
+        }
+    }
+
+    #[test]
     fn training_devices_and_strided_convolutions_keep_burns_path() {
         let device = Device::flex();
         let conv = Conv2dConfig::new([4, 4], [3, 3])
