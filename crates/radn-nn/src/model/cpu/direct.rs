@@ -1,4 +1,4 @@
-//! Same-size convolutions of narrow layers computed directly with AVX2 and FMA: each output
+//! Same-size convolutions computed directly with AVX2 and FMA, or AVX-512: each output
 //! vector of pixels is accumulated in registers over every input channel and kernel tap, reading
 //! the input rows in place (through a zero-padded slab of a few rows per job), with no im2col
 //! copy and no GEMM packing.
@@ -8,8 +8,9 @@
 //! and its packing; the blocked im2col + GEMM path of [`super::conv`] reached 42 GFLOP/s there
 //! against 125 at width 32 (docs/benchmarks.md). Computing in registers needs one load per
 //! input value and tap, shared by [`CHANNELS`] output channels. The result is the same function
-//! (equal to the GEMM path's to float rounding, tested); it runs where the CPU has AVX2 and FMA,
-//! and [`super::conv`] chooses it per layer shape (measured by `radn bench --convs`).
+//! (equal to the GEMM path's to float rounding, tested); it runs where the CPU has AVX2 and FMA
+//! or AVX-512F (the wider where both), and [`super::conv`] chooses it (measured by
+//! `radn bench --convs`).
 
 #[cfg(target_arch = "x86_64")]
 use std::arch::x86_64::*;
@@ -21,25 +22,62 @@ use crate::model::cpu::SendPtr;
 /// Output channels that share each loaded input vector (one register of accumulators each per
 /// pixel vector).
 pub const CHANNELS: usize = 4;
-/// Pixel vectors (8 floats each) per micro-kernel call: 16 pixels of [`CHANNELS`] channels are
-/// 8 accumulator registers, leaving room for the loads and the broadcast weight.
+/// Pixel vectors per micro-kernel call: with 8-float AVX2 vectors, 16 pixels of [`CHANNELS`]
+/// channels are 8 accumulator registers, leaving room for the loads and the broadcast weight;
+/// with 16-float AVX-512 vectors the same 8 registers hold 32 pixels.
 const VECTORS: usize = 2;
-/// Pixels per micro-kernel call.
-const PIXELS: usize = VECTORS * 8;
+/// Most pixels per micro-kernel call (AVX-512's).
+const MAX_PIXELS: usize = VECTORS * 16;
 /// Output rows per parallel job: the job's padded slab (its rows plus the kernel's reach above
 /// and below, every input channel) stays within a core's L2 cache for the narrow layers.
 const ROWS_PER_JOB: usize = 4;
 
-/// Whether this CPU runs the direct path (x86-64 with AVX2 and FMA, detected at run time).
+/// The vector instructions the direct path runs with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Isa {
+    /// 8-float vectors (AVX2 and FMA).
+    Avx2,
+    /// 16-float vectors (AVX-512F).
+    Avx512,
+}
+
+impl Isa {
+    /// Pixels per micro-kernel call.
+    fn pixels(self) -> usize {
+        match self {
+            Isa::Avx2 => VECTORS * 8,
+            Isa::Avx512 => VECTORS * 16,
+        }
+    }
+}
+
+/// The widest vector instructions this CPU has for the direct path (detected once at run time):
+/// AVX-512F where present, else AVX2 with FMA, else none. `RADN_CPU_CONV=avx2` keeps AVX2 on a
+/// CPU with AVX-512 (to compare, or where AVX-512 lowers the clock).
+pub fn isa() -> Option<Isa> {
+    static ISA: std::sync::OnceLock<Option<Isa>> = std::sync::OnceLock::new();
+    *ISA.get_or_init(|| {
+        #[cfg(target_arch = "x86_64")]
+        {
+            let forced_avx2 = std::env::var("RADN_CPU_CONV").is_ok_and(|v| v == "avx2");
+            if std::is_x86_feature_detected!("avx512f") && !forced_avx2 {
+                return Some(Isa::Avx512);
+            }
+            if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+                return Some(Isa::Avx2);
+            }
+            None
+        }
+        #[cfg(not(target_arch = "x86_64"))]
+        {
+            None
+        }
+    })
+}
+
+/// Whether this CPU runs the direct path (x86-64 with AVX2 and FMA, or AVX-512F).
 pub fn available() -> bool {
-    #[cfg(target_arch = "x86_64")]
-    {
-        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
-    }
-    #[cfg(not(target_arch = "x86_64"))]
-    {
-        false
-    }
+    isa().is_some()
 }
 
 /// A convolution's weights in the micro-kernel's order: per block of [`CHANNELS`] output
@@ -114,6 +152,7 @@ pub fn conv_same_direct(
     // (every row of every output channel of every image) before the length is set.
     unsafe {
         conv_same_direct_into(
+            direct_isa(),
             x,
             dims,
             packed,
@@ -125,6 +164,14 @@ pub fn conv_same_direct(
     out
 }
 
+/// This CPU's ISA for the direct path.
+///
+/// # Panics
+/// When it has none ([`available`]).
+fn direct_isa() -> Isa {
+    isa().expect("the direct convolution needs AVX2 and FMA, or AVX-512")
+}
+
 /// `out += conv(x)` for `b` images `x` (`[b, cin, h, w]`) and `out` (`[b, cout, h, w]`): the
 /// residual add fused into the convolution's stores.
 ///
@@ -134,22 +181,24 @@ pub fn conv_same_direct_add(x: &[f32], dims: [usize; 4], packed: &PackedWeights,
     let [b, _, h, w] = dims;
     assert_eq!(out.len(), b * packed.cout * h * w, "output size");
     // SAFETY: `out` holds exactly the `[b, cout, h, w]` values the convolution adds to.
-    unsafe { conv_same_direct_into(x, dims, packed, Write::Add, out.as_mut_ptr()) }
+    unsafe { conv_same_direct_into(direct_isa(), x, dims, packed, Write::Add, out.as_mut_ptr()) }
 }
 
-/// The convolution written through `out` by `write`.
+/// The convolution written through `out` by `write`, with the instructions of `isa`.
 ///
 /// # Safety
-/// `out` must be valid for writes (and, for [`Write::Add`], reads of initialised values) of
-/// `b · cout · h · w` floats that nothing else accesses during the call.
+/// `isa` must be one this CPU has; `out` must be valid for writes (and, for [`Write::Add`],
+/// reads of initialised values) of `b · cout · h · w` floats that nothing else accesses during
+/// the call.
 unsafe fn conv_same_direct_into(
+    isa: Isa,
     x: &[f32],
     [b, cin, h, w]: [usize; 4],
     packed: &PackedWeights,
     write: Write,
     out: *mut f32,
 ) {
-    assert!(available(), "the direct convolution needs AVX2 and FMA");
+    let pixels = isa.pixels();
     assert_eq!(cin, packed.cin, "input channels");
     assert_eq!(x.len(), b * cin * h * w, "input size");
     let cout = packed.cout;
@@ -160,7 +209,7 @@ unsafe fn conv_same_direct_into(
     let (ry, rx) = (kh / 2, kw / 2);
     // slab columns: the kernel's reach left, the row, and enough beyond it that every vector
     // load of the last (partial) pixel block stays inside
-    let slab_w = w.div_ceil(PIXELS) * PIXELS + 2 * rx;
+    let slab_w = w.div_ceil(pixels) * pixels + 2 * rx;
     let slab_rows = ROWS_PER_JOB + 2 * ry;
     let jobs_per_image = h.div_ceil(ROWS_PER_JOB);
     let plane = h * w;
@@ -181,6 +230,7 @@ unsafe fn conv_same_direct_into(
                 // rows of each output plane, all within `out` (the caller's promise).
                 unsafe {
                     conv_row(
+                        isa,
                         slab.as_ptr().add((y - y0) * slab_w),
                         [slab_rows * slab_w, slab_w],
                         packed,
@@ -224,10 +274,11 @@ fn fill_slab(
 ///
 /// # Safety
 /// AVX2 and FMA must be available; the slab must hold `kh` rows of every channel with
-/// `ceil(w / PIXELS) · PIXELS + kw − 1` readable floats each, and `dst` must be valid for the
-/// row of every output channel.
+/// `ceil(w / p) · p + kw − 1` readable floats each (`p` the ISA's pixels per call), and `dst`
+/// must be valid for the row of every output channel.
 #[cfg(target_arch = "x86_64")]
 unsafe fn conv_row(
+    isa: Isa,
     src: *const f32,
     src_stride: [usize; 2],
     packed: &PackedWeights,
@@ -238,23 +289,29 @@ unsafe fn conv_row(
     let relu_after = write == Write::Set { relu: true };
     let blocks = packed.cout.div_ceil(CHANNELS);
     let per_block = packed.cin * packed.kernel[0] * packed.kernel[1] * CHANNELS;
-    for x0 in (0..w).step_by(PIXELS) {
+    let pixels = isa.pixels();
+    for x0 in (0..w).step_by(pixels) {
         for block in 0..blocks {
-            let mut acc = [[0.0f32; PIXELS]; CHANNELS];
-            // SAFETY: the caller's promise; the block's weights and bias are in range.
+            let mut acc = [[0.0f32; MAX_PIXELS]; CHANNELS];
+            let args = (
+                // SAFETY (of the offsets): within the slab row and the packed weights
+                unsafe { src.add(x0) },
+                src_stride,
+                packed.cin,
+                packed.kernel,
+                unsafe { packed.weights.as_ptr().add(block * per_block) },
+                unsafe { packed.bias.as_ptr().add(block * CHANNELS) },
+                relu_after,
+            );
+            // SAFETY: the caller's promise (the ISA is this CPU's, from `isa()`); the block's
+            // weights and bias are in range.
             unsafe {
-                micro_kernel(
-                    src.add(x0),
-                    src_stride,
-                    packed.cin,
-                    packed.kernel,
-                    packed.weights.as_ptr().add(block * per_block),
-                    packed.bias.as_ptr().add(block * CHANNELS),
-                    relu_after,
-                    &mut acc,
-                );
+                match isa {
+                    Isa::Avx2 => micro_kernel_avx2(args, &mut acc),
+                    Isa::Avx512 => micro_kernel_avx512(args, &mut acc),
+                }
             }
-            let n = PIXELS.min(w - x0);
+            let n = pixels.min(w - x0);
             let channels = CHANNELS.min(packed.cout - block * CHANNELS);
             for (lane, values) in acc.iter().enumerate().take(channels) {
                 let co = block * CHANNELS + lane;
@@ -276,6 +333,7 @@ unsafe fn conv_row(
 
 #[cfg(not(target_arch = "x86_64"))]
 unsafe fn conv_row(
+    _isa: Isa,
     _src: *const f32,
     _src_stride: [usize; 2],
     _packed: &PackedWeights,
@@ -286,25 +344,31 @@ unsafe fn conv_row(
     unreachable!("the direct convolution runs only on x86-64 ([`available`])");
 }
 
-/// [`PIXELS`] consecutive output pixels of [`CHANNELS`] output channels, accumulated in
-/// registers over every input channel and tap, plus the bias, then the optional ReLU.
+/// A micro-kernel call's arguments: the slab at the block's first pixel, the slab's channel and
+/// row strides, input channels, kernel size, the block's packed weights and bias, and whether a
+/// ReLU follows.
+type KernelArgs = (
+    *const f32,
+    [usize; 2],
+    usize,
+    [usize; 2],
+    *const f32,
+    *const f32,
+    bool,
+);
+
+/// 16 consecutive output pixels of [`CHANNELS`] output channels, accumulated in AVX2 registers
+/// over every input channel and tap, plus the bias, then the optional ReLU.
 ///
 /// # Safety
 /// AVX2 and FMA must be available; `src` must be readable for `kh` rows (`src_stride[1]` apart)
-/// of `cin` channels (`src_stride[0]` apart), `PIXELS + kw − 1` floats each; `weights` for
+/// of `cin` channels (`src_stride[0]` apart), `16 + kw − 1` floats each; `weights` for
 /// `cin · kh · kw · CHANNELS` floats and `bias` for `CHANNELS`.
 #[cfg(target_arch = "x86_64")]
 #[target_feature(enable = "avx2,fma")]
-#[allow(clippy::too_many_arguments)]
-unsafe fn micro_kernel(
-    src: *const f32,
-    [channel_stride, row_stride]: [usize; 2],
-    cin: usize,
-    [kh, kw]: [usize; 2],
-    weights: *const f32,
-    bias: *const f32,
-    relu_after: bool,
-    out: &mut [[f32; PIXELS]; CHANNELS],
+unsafe fn micro_kernel_avx2(
+    (src, [channel_stride, row_stride], cin, [kh, kw], weights, bias, relu_after): KernelArgs,
+    out: &mut [[f32; MAX_PIXELS]; CHANNELS],
 ) {
     // SAFETY: every pointer offset below stays within the ranges the caller promises.
     unsafe {
@@ -347,9 +411,113 @@ unsafe fn micro_kernel(
     }
 }
 
+/// [`micro_kernel_avx2`] with AVX-512 registers: 32 consecutive output pixels.
+///
+/// # Safety
+/// AVX-512F must be available; `src` must be readable for `kh` rows of `cin` channels,
+/// `32 + kw − 1` floats each; `weights` for `cin · kh · kw · CHANNELS` floats and `bias` for
+/// `CHANNELS`.
+#[cfg(target_arch = "x86_64")]
+#[target_feature(enable = "avx512f")]
+unsafe fn micro_kernel_avx512(
+    (src, [channel_stride, row_stride], cin, [kh, kw], weights, bias, relu_after): KernelArgs,
+    out: &mut [[f32; MAX_PIXELS]; CHANNELS],
+) {
+    // SAFETY: every pointer offset below stays within the ranges the caller promises.
+    unsafe {
+        let mut acc = [[_mm512_setzero_ps(); VECTORS]; CHANNELS];
+        for (lane, row) in acc.iter_mut().enumerate() {
+            *row = [_mm512_set1_ps(*bias.add(lane)); VECTORS];
+        }
+        let mut wp = weights;
+        for ci in 0..cin {
+            for ky in 0..kh {
+                let row = src.add(ci * channel_stride + ky * row_stride);
+                for kx in 0..kw {
+                    let p = row.add(kx);
+                    let mut v = [_mm512_setzero_ps(); VECTORS];
+                    for (j, vj) in v.iter_mut().enumerate() {
+                        *vj = _mm512_loadu_ps(p.add(16 * j));
+                    }
+                    for (lane, a) in acc.iter_mut().enumerate() {
+                        let wv = _mm512_set1_ps(*wp.add(lane));
+                        for j in 0..VECTORS {
+                            a[j] = _mm512_fmadd_ps(wv, v[j], a[j]);
+                        }
+                    }
+                    wp = wp.add(CHANNELS);
+                }
+            }
+        }
+        let zero = _mm512_setzero_ps();
+        for (lane, a) in acc.iter().enumerate() {
+            for (j, &v) in a.iter().enumerate() {
+                let v = if relu_after {
+                    _mm512_max_ps(v, zero)
+                } else {
+                    v
+                };
+                _mm512_storeu_ps(out[lane].as_mut_ptr().add(16 * j), v);
+            }
+        }
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn avx2_and_avx512_compute_the_same_values() {
+        #[cfg(target_arch = "x86_64")]
+        {
+            if !(std::is_x86_feature_detected!("avx512f")
+                && std::is_x86_feature_detected!("avx2")
+                && std::is_x86_feature_detected!("fma"))
+            {
+                eprintln!("SKIPPED: this CPU lacks AVX-512F or AVX2");
+                return;
+            }
+            // widths around both ISAs' pixel blocks (16 and 32), a residual add, a ReLU
+            for (cin, cout, h, w) in [(16, 16, 9, 47), (7, 5, 5, 16), (3, 9, 4, 33), (4, 2, 3, 1)] {
+                let x: Vec<f32> = (0..2 * cin * h * w)
+                    .map(|i| ((i * 7919) % 1000) as f32 / 500.0 - 1.0)
+                    .collect();
+                let weight: Vec<f32> = (0..cout * cin * 9)
+                    .map(|i| ((i * 104_729) % 1000) as f32 / 700.0 - 0.7)
+                    .collect();
+                let bias: Vec<f32> = (0..cout).map(|i| i as f32 * 0.1 - 0.2).collect();
+                let packed = PackedWeights::new(&weight, Some(&bias), [cout, cin, 3, 3]);
+                for write in [
+                    Write::Set { relu: true },
+                    Write::Set { relu: false },
+                    Write::Add,
+                ] {
+                    let run = |isa| {
+                        let mut out = vec![0.5f32; 2 * cout * h * w];
+                        // SAFETY: both ISAs were detected above; `out` has the output's size.
+                        unsafe {
+                            conv_same_direct_into(
+                                isa,
+                                &x,
+                                [2, cin, h, w],
+                                &packed,
+                                write,
+                                out.as_mut_ptr(),
+                            )
+                        };
+                        out
+                    };
+                    // the same multiply-adds in the same order per pixel: equal bit for bit
+                    assert_eq!(
+                        run(Isa::Avx2),
+                        run(Isa::Avx512),
+                        "{cin}→{cout} {w}×{h} {write:?}"
+                    );
+                }
+            }
+        }
+    }
 
     #[test]
     fn packed_weights_put_each_output_channel_in_its_lane() {
