@@ -273,7 +273,7 @@ fn fill_slab(
 /// of channel 0, channels `dst_stride[0]` apart, `dst_stride[1]` (the width) pixels written.
 ///
 /// # Safety
-/// AVX2 and FMA must be available; the slab must hold `kh` rows of every channel with
+/// `isa` must be one this CPU has ([`isa`]); the slab must hold `kh` rows of every channel with
 /// `ceil(w / p) · p + kw − 1` readable floats each (`p` the ISA's pixels per call), and `dst`
 /// must be valid for the row of every output channel.
 #[cfg(target_arch = "x86_64")]
