@@ -293,7 +293,7 @@ pub fn time_convs(
                 burn_ms,
                 gemm_ms: by(ConvPath::Gemm),
                 direct_ms: crate::model::cpu::direct::available().then(|| by(ConvPath::Direct)),
-                chosen: preferred_path([cin, cout, 3, 3]),
+                chosen: preferred_path(),
                 flops: batch as f64 * conv_flops(&conv, tile * tile),
             }
         })

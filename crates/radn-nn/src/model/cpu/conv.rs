@@ -98,7 +98,7 @@ impl HostConv {
         let data = |t: TensorData| t.try_into_vec::<f32>().expect("f32 weights");
         let weight = data(weight.into_data());
         let bias = conv.bias.as_ref().map(|b| data(b.val().into_data()));
-        let packed = (preferred_path([cin, cout, kh, kw]) == ConvPath::Direct)
+        let packed = (preferred_path() == ConvPath::Direct)
             .then(|| direct::PackedWeights::new(&weight, bias.as_deref(), [cout, cin, kh, kw]));
         Self {
             weight,
@@ -163,7 +163,7 @@ pub fn conv_same_nchw(
     relu_after: bool,
 ) -> Vec<f32> {
     conv_same_nchw_by(
-        preferred_path([cin, cout, kh, kw]),
+        preferred_path(),
         x,
         [b, cin, h, w],
         weight,
@@ -178,16 +178,16 @@ pub fn conv_same_nchw(
 pub enum ConvPath {
     /// Blocked im2col + one GEMM per block (any CPU).
     Gemm,
-    /// Accumulated in registers with AVX2 and FMA ([`super::direct`]).
+    /// Accumulated in registers with AVX2 and FMA, or AVX-512 ([`super::direct`]).
     Direct,
 }
 
-/// The path for a layer of shape `[cin, cout, kh, kw]` on this CPU: the direct one wherever
-/// the CPU has AVX2 and FMA. `radn bench --convs` times both on every layer shape of the shipped
+/// The path for every layer on this CPU: the direct one wherever the CPU has AVX2 and FMA, or
+/// AVX-512. `radn bench --convs` times both on every layer shape of the shipped
 /// models; the direct path was the faster on each (docs/benchmarks.md). The environment
 /// variable `RADN_CPU_CONV=gemm` keeps the GEMM path everywhere (to compare whole runs, or for
 /// a CPU where it measures faster).
-pub fn preferred_path(_shape: [usize; 4]) -> ConvPath {
+pub fn preferred_path() -> ConvPath {
     static DIRECT: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
     let direct = *DIRECT.get_or_init(|| {
         direct::available() && std::env::var("RADN_CPU_CONV").map_or(true, |v| v != "gemm")

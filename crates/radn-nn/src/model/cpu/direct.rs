@@ -357,111 +357,77 @@ type KernelArgs = (
     bool,
 );
 
-/// 16 consecutive output pixels of [`CHANNELS`] output channels, accumulated in AVX2 registers
-/// over every input channel and tap, plus the bias, then the optional ReLU.
-///
-/// # Safety
-/// AVX2 and FMA must be available; `src` must be readable for `kh` rows (`src_stride[1]` apart)
-/// of `cin` channels (`src_stride[0]` apart), `16 + kw − 1` floats each; `weights` for
-/// `cin · kh · kw · CHANNELS` floats and `bias` for `CHANNELS`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx2,fma")]
-unsafe fn micro_kernel_avx2(
-    (src, [channel_stride, row_stride], cin, [kh, kw], weights, bias, relu_after): KernelArgs,
-    out: &mut [[f32; MAX_PIXELS]; CHANNELS],
-) {
-    // SAFETY: every pointer offset below stays within the ranges the caller promises.
-    unsafe {
-        let mut acc = [[_mm256_setzero_ps(); VECTORS]; CHANNELS];
-        for (lane, row) in acc.iter_mut().enumerate() {
-            let b = _mm256_broadcast_ss(&*bias.add(lane));
-            *row = [b; VECTORS];
-        }
-        let mut wp = weights;
-        for ci in 0..cin {
-            for ky in 0..kh {
-                let row = src.add(ci * channel_stride + ky * row_stride);
-                for kx in 0..kw {
-                    let p = row.add(kx);
-                    let mut v = [_mm256_setzero_ps(); VECTORS];
-                    for (j, vj) in v.iter_mut().enumerate() {
-                        *vj = _mm256_loadu_ps(p.add(8 * j));
-                    }
-                    for (lane, a) in acc.iter_mut().enumerate() {
-                        let wv = _mm256_broadcast_ss(&*wp.add(lane));
-                        for j in 0..VECTORS {
-                            a[j] = _mm256_fmadd_ps(wv, v[j], a[j]);
+/// Defines a micro-kernel: `$lanes` × [`VECTORS`] consecutive output pixels of [`CHANNELS`]
+/// output channels, accumulated in `$vector` registers over every input channel and tap, plus
+/// the bias, then the optional ReLU. One body for both ISAs, so that they stay the same
+/// multiply-adds in the same order (bit-identical results, tested).
+macro_rules! micro_kernel {
+    ($(#[$doc:meta])* $name:ident, $feature:literal, $vector:ty, $lanes:literal,
+     zero: $zero:ident, splat: $splat:ident, load: $load:ident, fmadd: $fmadd:ident,
+     max: $max:ident, store: $store:ident) => {
+        $(#[$doc])*
+        ///
+        /// # Safety
+        /// The ISA must be available; `src` must be readable for `kh` rows (`src_stride[1]`
+        /// apart) of `cin` channels (`src_stride[0]` apart), `lanes · VECTORS + kw − 1` floats
+        /// each; `weights` for `cin · kh · kw · CHANNELS` floats and `bias` for `CHANNELS`.
+        #[cfg(target_arch = "x86_64")]
+        #[target_feature(enable = $feature)]
+        unsafe fn $name(
+            (src, [channel_stride, row_stride], cin, [kh, kw], weights, bias, relu_after): KernelArgs,
+            out: &mut [[f32; MAX_PIXELS]; CHANNELS],
+        ) {
+            // SAFETY: every pointer offset below stays within the ranges the caller promises.
+            unsafe {
+                let mut acc: [[$vector; VECTORS]; CHANNELS] = [[$zero(); VECTORS]; CHANNELS];
+                for (lane, row) in acc.iter_mut().enumerate() {
+                    *row = [$splat(*bias.add(lane)); VECTORS];
+                }
+                let mut wp = weights;
+                for ci in 0..cin {
+                    for ky in 0..kh {
+                        let row = src.add(ci * channel_stride + ky * row_stride);
+                        for kx in 0..kw {
+                            let p = row.add(kx);
+                            let mut v = [$zero(); VECTORS];
+                            for (j, vj) in v.iter_mut().enumerate() {
+                                *vj = $load(p.add($lanes * j));
+                            }
+                            for (lane, a) in acc.iter_mut().enumerate() {
+                                let wv = $splat(*wp.add(lane));
+                                for j in 0..VECTORS {
+                                    a[j] = $fmadd(wv, v[j], a[j]);
+                                }
+                            }
+                            wp = wp.add(CHANNELS);
                         }
                     }
-                    wp = wp.add(CHANNELS);
+                }
+                let zero = $zero();
+                for (lane, a) in acc.iter().enumerate() {
+                    for (j, &v) in a.iter().enumerate() {
+                        let v = if relu_after { $max(v, zero) } else { v };
+                        $store(out[lane].as_mut_ptr().add($lanes * j), v);
+                    }
                 }
             }
         }
-        let zero = _mm256_setzero_ps();
-        for (lane, a) in acc.iter().enumerate() {
-            for (j, &v) in a.iter().enumerate() {
-                let v = if relu_after {
-                    _mm256_max_ps(v, zero)
-                } else {
-                    v
-                };
-                _mm256_storeu_ps(out[lane].as_mut_ptr().add(8 * j), v);
-            }
-        }
-    }
+    };
 }
 
-/// [`micro_kernel_avx2`] with AVX-512 registers: 32 consecutive output pixels.
-///
-/// # Safety
-/// AVX-512F must be available; `src` must be readable for `kh` rows of `cin` channels,
-/// `32 + kw − 1` floats each; `weights` for `cin · kh · kw · CHANNELS` floats and `bias` for
-/// `CHANNELS`.
-#[cfg(target_arch = "x86_64")]
-#[target_feature(enable = "avx512f")]
-unsafe fn micro_kernel_avx512(
-    (src, [channel_stride, row_stride], cin, [kh, kw], weights, bias, relu_after): KernelArgs,
-    out: &mut [[f32; MAX_PIXELS]; CHANNELS],
-) {
-    // SAFETY: every pointer offset below stays within the ranges the caller promises.
-    unsafe {
-        let mut acc = [[_mm512_setzero_ps(); VECTORS]; CHANNELS];
-        for (lane, row) in acc.iter_mut().enumerate() {
-            *row = [_mm512_set1_ps(*bias.add(lane)); VECTORS];
-        }
-        let mut wp = weights;
-        for ci in 0..cin {
-            for ky in 0..kh {
-                let row = src.add(ci * channel_stride + ky * row_stride);
-                for kx in 0..kw {
-                    let p = row.add(kx);
-                    let mut v = [_mm512_setzero_ps(); VECTORS];
-                    for (j, vj) in v.iter_mut().enumerate() {
-                        *vj = _mm512_loadu_ps(p.add(16 * j));
-                    }
-                    for (lane, a) in acc.iter_mut().enumerate() {
-                        let wv = _mm512_set1_ps(*wp.add(lane));
-                        for j in 0..VECTORS {
-                            a[j] = _mm512_fmadd_ps(wv, v[j], a[j]);
-                        }
-                    }
-                    wp = wp.add(CHANNELS);
-                }
-            }
-        }
-        let zero = _mm512_setzero_ps();
-        for (lane, a) in acc.iter().enumerate() {
-            for (j, &v) in a.iter().enumerate() {
-                let v = if relu_after {
-                    _mm512_max_ps(v, zero)
-                } else {
-                    v
-                };
-                _mm512_storeu_ps(out[lane].as_mut_ptr().add(16 * j), v);
-            }
-        }
-    }
-}
+micro_kernel!(
+    /// 16 pixels per call in AVX2 registers.
+    micro_kernel_avx2, "avx2,fma", __m256, 8,
+    zero: _mm256_setzero_ps, splat: _mm256_set1_ps, load: _mm256_loadu_ps,
+    fmadd: _mm256_fmadd_ps, max: _mm256_max_ps, store: _mm256_storeu_ps
+);
+
+micro_kernel!(
+    /// 32 pixels per call in AVX-512 registers.
+    micro_kernel_avx512, "avx512f", __m512, 16,
+    zero: _mm512_setzero_ps, splat: _mm512_set1_ps, load: _mm512_loadu_ps,
+    fmadd: _mm512_fmadd_ps, max: _mm512_max_ps, store: _mm512_storeu_ps
+);
 
 #[cfg(test)]
 mod tests {
