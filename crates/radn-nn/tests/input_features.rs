@@ -121,3 +121,71 @@ fn prepared_tiles_record_the_exposure_inference_uses() {
         assert!(e > 1e-3 && e < 10.0, "{level}: {e}");
     }
 }
+
+#[test]
+fn inference_builds_exactly_the_features_training_derives_from_stored_tiles() {
+    // inference (`network_input`: one parallel pass, one logarithm per sample) and training
+    // (`network_features` of the base features tiles store, plus the colour and guide) must
+    // feed the network the same numbers, bit for bit, for every input option
+    use radn_nn::infer::input::{features_in, network_features};
+    let mut win = window("half", 4);
+    // a guide of its own (the half-spp colour scaled), so the guide channels differ from colour
+    for f in &mut win.frames {
+        let mut g = f.color.clone();
+        g.data_mut().iter_mut().for_each(|v| *v = 0.5 * *v + 0.01);
+        f.guide = Some(g);
+    }
+    let scales = FeatureScales::of(&win);
+    let (w, h) = (win.centre().color.width(), win.centre().color.height());
+    let regions = [
+        Region::whole(w, h),
+        Region {
+            x0: 7,
+            y0: 3,
+            x1: w - 11,
+            y1: h / 2 + 5,
+        },
+    ];
+    for region in regions {
+        let crop = |pick: &dyn Fn(&radn_core::align::AlignedFrame) -> &radn_core::Plane| {
+            let mut v = Vec::new();
+            for f in &win.frames {
+                region.crop(pick(f), &mut v);
+            }
+            v
+        };
+        let colour = crop(&|f| &f.color);
+        let guide = crop(&|f| f.guide.as_ref().unwrap());
+        for (exposure, noise, guided) in [
+            (false, false, false),
+            (true, false, false),
+            (false, true, false),
+            (true, true, false),
+            (true, true, true),
+            (false, false, true),
+        ] {
+            let inputs = InputConfig {
+                exposure,
+                noise,
+                guide: guided,
+            };
+            let trained = network_features(
+                features_in(&win, scales.depth, region),
+                &colour,
+                Some(&guide),
+                win.frames.len(),
+                region.pixels(),
+                &inputs,
+                scales.exposure,
+            );
+            let inferred = network_input(&win, scales, region, &inputs);
+            assert_eq!(trained.len(), inferred.len(), "{inputs:?}");
+            let differing = trained
+                .iter()
+                .zip(&inferred)
+                .filter(|(a, b)| a.to_bits() != b.to_bits())
+                .count();
+            assert_eq!(differing, 0, "{inputs:?} over {region:?}");
+        }
+    }
+}

@@ -6,6 +6,7 @@ use radn_core::frame::{
     add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, FAR_DEPTH,
 };
 use radn_core::noise_level::NoiseLevelHistogram;
+use rayon::prelude::*;
 
 use crate::model::config::{InputConfig, INPUT_CHANNELS};
 
@@ -95,91 +96,120 @@ pub fn features(win: &AlignedWindow) -> Vec<f32> {
 }
 
 /// The base features of [`features`] for one region of the frame, `[T, INPUT_CHANNELS, h, w]`
-/// (tiled inference computes them tile by tile instead of holding the whole frame's).
+/// (tiled inference computes them tile by tile instead of holding the whole frame's). The
+/// frames are filled in parallel.
 pub fn features_in(win: &AlignedWindow, depth_ref: f32, region: Region) -> Vec<f32> {
     let n = region.pixels();
-    let mut out = Vec::with_capacity(win.frames.len() * INPUT_CHANNELS * n);
-    let mut part = Vec::with_capacity(3 * n);
-    let mut put = |plane: &radn_core::Plane, map: &dyn Fn(f32) -> f32, out: &mut Vec<f32>| {
-        part.clear();
-        region.crop(plane, &mut part);
-        out.extend(part.iter().map(|&v| map(v)));
-    };
-    for f in &win.frames {
-        put(&f.color, &|v| v.max(0.0).ln_1p(), &mut out);
-        match &f.albedo {
-            Some(a) => put(a, &|v| v.clamp(0.0, 2.0), &mut out),
-            None => out.extend(std::iter::repeat_n(0.0, 3 * n)),
-        }
-        match &f.normal {
-            Some(nm) => put(nm, &|v| v.clamp(-1.0, 1.0), &mut out),
-            None => out.extend(std::iter::repeat_n(0.0, 3 * n)),
-        }
-        match &f.depth {
-            Some(d) => put(
-                d,
-                &|z| {
-                    if z >= 0.5 * FAR_DEPTH || !z.is_finite() {
-                        DEPTH_CLAMP
-                    } else {
-                        (z.max(1e-6) / depth_ref)
-                            .ln()
-                            .clamp(-DEPTH_CLAMP, DEPTH_CLAMP)
-                    }
-                },
-                &mut out,
-            ),
-            None => out.extend(std::iter::repeat_n(0.0, n)),
-        }
-        put(&f.confidence, &|v| v, &mut out);
-    }
+    let mut out = vec![0.0; win.frames.len() * INPUT_CHANNELS * n];
+    out.par_chunks_mut(INPUT_CHANNELS * n)
+        .zip(&win.frames)
+        .for_each(|(dst, f)| frame_base_into(f, depth_ref, region, 1.0, dst));
     out
+}
+
+/// `region` of every channel of `plane`, mapped by `map`, into `dst` (channel-major).
+fn crop_map(region: Region, plane: &radn_core::Plane, dst: &mut [f32], map: impl Fn(f32) -> f32) {
+    let (w, rw) = (plane.width(), region.x1 - region.x0);
+    let mut rows = dst.chunks_exact_mut(rw);
+    for c in 0..plane.channels() {
+        let ch = plane.channel(c);
+        for y in region.y0..region.y1 {
+            let src = &ch[y * w + region.x0..y * w + region.x1];
+            let row = rows.next().expect("dst holds every channel's region");
+            for (d, &v) in row.iter_mut().zip(src) {
+                *d = map(v);
+            }
+        }
+    }
+}
+
+/// One frame's base features for `region` into `dst` (`[INPUT_CHANNELS, n]`, zeros where the
+/// frame lacks a buffer), with its log colour `ln(1 + max(0, c)·inv_exposure)`: `inv_exposure`
+/// is 1 for the base features tiles store, and the reciprocal of the centre frame's exposure
+/// for a network that normalises it — one logarithm per sample either way.
+fn frame_base_into(
+    f: &radn_core::align::AlignedFrame,
+    depth_ref: f32,
+    region: Region,
+    inv_exposure: f32,
+    dst: &mut [f32],
+) {
+    let n = region.pixels();
+    let (colour, rest) = dst.split_at_mut(3 * n);
+    crop_map(region, &f.color, colour, |v| {
+        (v.max(0.0) * inv_exposure).ln_1p()
+    });
+    let (albedo, rest) = rest.split_at_mut(3 * n);
+    match &f.albedo {
+        Some(a) => crop_map(region, a, albedo, |v| v.clamp(0.0, 2.0)),
+        None => albedo.fill(0.0),
+    }
+    let (normal, rest) = rest.split_at_mut(3 * n);
+    match &f.normal {
+        Some(nm) => crop_map(region, nm, normal, |v| v.clamp(-1.0, 1.0)),
+        None => normal.fill(0.0),
+    }
+    let (depth, confidence) = rest.split_at_mut(n);
+    match &f.depth {
+        Some(d) => crop_map(region, d, depth, |z| {
+            if z >= 0.5 * FAR_DEPTH || !z.is_finite() {
+                DEPTH_CLAMP
+            } else {
+                (z.max(1e-6) / depth_ref)
+                    .ln()
+                    .clamp(-DEPTH_CLAMP, DEPTH_CLAMP)
+            }
+        }),
+        None => depth.fill(0.0),
+    }
+    crop_map(region, &f.confidence, &mut confidence[..n], |v| v);
 }
 
 /// The input a network configured with `inputs` reads for one region, `[T, C, h, w]`: the
 /// base features, colour divided by the exposure where asked, the noise estimate and the
-/// guide. A network that reads a guide needs one in every frame of the window.
+/// guide. A network that reads a guide needs one in every frame of the window. Equal to
+/// [`network_features`] of [`features_in`] (tested), built in one parallel pass per frame.
 pub fn network_input(
     win: &AlignedWindow,
     scales: FeatureScales,
     region: Region,
     inputs: &InputConfig,
 ) -> Vec<f32> {
-    let base = features_in(win, scales.depth, region);
-    if inputs.is_base() {
-        return base;
+    let n = region.pixels();
+    let c = inputs.channels();
+    let frames = win.frames.len();
+    let inv = if inputs.exposure {
+        1.0 / scales.exposure
+    } else {
+        1.0
+    };
+    let guide_at = INPUT_CHANNELS + usize::from(inputs.noise);
+    let mut out = vec![0.0; frames * c * n];
+    out.par_chunks_mut(c * n)
+        .zip(&win.frames)
+        .for_each(|(dst, f)| {
+            frame_base_into(f, scales.depth, region, inv, &mut dst[..INPUT_CHANNELS * n]);
+            if inputs.guide {
+                let plane = f
+                    .guide
+                    .as_ref()
+                    .expect("a guided network's windows carry guides (checked by its denoiser)");
+                crop_map(region, plane, &mut dst[guide_at * n..][..3 * n], |v| {
+                    (v.max(0.0) * inv).ln_1p()
+                });
+            }
+        });
+    if inputs.noise {
+        fill_noise(&mut out, frames, c, n);
     }
-    let mut colour = Vec::with_capacity(win.frames.len() * 3 * region.pixels());
-    for f in &win.frames {
-        region.crop(&f.color, &mut colour);
-    }
-    let guide = inputs.guide.then(|| {
-        let mut g = Vec::with_capacity(win.frames.len() * 3 * region.pixels());
-        for f in &win.frames {
-            let plane = f
-                .guide
-                .as_ref()
-                .expect("a guided network's windows carry guides (checked by its denoiser)");
-            region.crop(plane, &mut g);
-        }
-        g
-    });
-    network_features(
-        base,
-        &colour,
-        guide.as_deref(),
-        win.frames.len(),
-        region.pixels(),
-        inputs,
-        scales.exposure,
-    )
+    out
 }
 
 /// The features a network configured with `inputs` reads, from the base features `base`
 /// (`[T, INPUT_CHANNELS, n]`, as [`features_in`] makes and tiles store), the linear colour
 /// `colour` (`[T, 3, n]`) of the same pixels and, for a guided network, their linear guide
 /// `guide` (`[T, 3, n]`); `exposure` is the centre frame's ([`FeatureScales::exposure`]).
-/// Training and inference both build their input here.
+/// Training builds its input here; inference builds the same values with [`network_input`].
 ///
 /// - `exposure`: the log colour becomes `ln(1 + max(0, c) / exposure)`.
 /// - `noise`: one more channel per frame, the same in every frame: at each pixel, the spread
@@ -232,34 +262,47 @@ pub fn network_features(
     }
     debug_assert_eq!(guide_at + 3 * usize::from(inputs.guide), c);
     if inputs.noise {
-        let at = |k: usize, ch: usize, p: usize| (k * c + ch) * n + p;
+        fill_noise(&mut out, frames, c, n);
+    }
+    out
+}
+
+/// Fills channel [`INPUT_CHANNELS`] of every frame of `out` (`[T, c, n]`) with the noise
+/// estimate of [`network_features`], from the log colour (channels 0–2) and the confidence
+/// (channel `INPUT_CHANNELS − 1`); pixels in parallel, each pixel's sums in frame order.
+fn fill_noise(out: &mut [f32], frames: usize, c: usize, n: usize) {
+    const CHUNK: usize = 4096;
+    let at = |k: usize, ch: usize, p: usize| (k * c + ch) * n + p;
+    let read: &[f32] = out;
+    let mut sds = vec![0.0f32; n];
+    sds.par_chunks_mut(CHUNK).enumerate().for_each(|(i, sds)| {
         // per frame: (log luminance, confidence) of the pixel
         let mut lw = vec![(0.0f32, 0.0f32); frames];
-        for p in 0..n {
+        for (j, sd) in sds.iter_mut().enumerate() {
+            let p = i * CHUNK + j;
             let (mut sw, mut sww, mut swl) = (0.0f32, 0.0f32, 0.0f32);
             for (k, lw) in lw.iter_mut().enumerate() {
-                let l = (out[at(k, 0, p)] + out[at(k, 1, p)] + out[at(k, 2, p)]) / 3.0;
-                let w = out[at(k, INPUT_CHANNELS - 1, p)].clamp(0.0, 1.0);
+                let l = (read[at(k, 0, p)] + read[at(k, 1, p)] + read[at(k, 2, p)]) / 3.0;
+                let w = read[at(k, INPUT_CHANNELS - 1, p)].clamp(0.0, 1.0);
                 *lw = (l, w);
                 sw += w;
                 sww += w * w;
                 swl += w * l;
             }
-            let mut sd = 0.0;
+            *sd = 0.0;
             if sw > 0.0 {
                 let mean = swl / sw;
                 let spread = lw.iter().map(|&(l, w)| w * (l - mean).powi(2)).sum::<f32>() / sw;
                 let n_eff = sw * sw / sww.max(f32::MIN_POSITIVE);
                 if n_eff > 1.5 {
-                    sd = (spread * n_eff / (n_eff - 1.0)).sqrt();
+                    *sd = (spread * n_eff / (n_eff - 1.0)).sqrt();
                 }
             }
-            for k in 0..frames {
-                out[at(k, INPUT_CHANNELS, p)] = sd;
-            }
         }
+    });
+    for k in 0..frames {
+        out[at(k, INPUT_CHANNELS, 0)..][..n].copy_from_slice(&sds);
     }
-    out
 }
 
 /// The linear beauty of every frame, `[T, 3, H, W]`.
