@@ -61,14 +61,21 @@ fn default_model_beats_its_input_and_the_classic_denoiser_at_4_spp_on_the_sample
 fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
     // the paper's strength control (its Fig. 3): the shipped model's kernels are normalised
     // before η_t (`norm_eta`), so t drops the weak taps. This tests the kernels' threshold, so
-    // without the input blend (which pulls toward the input itself: with it, 29.18 → 29.31 dB
-    // against the input over the same range). Measured at 32 spp: from the default
-    // t = 1/(2K) = 0.004 to 0.0075, PSNR against the input 28.42 → 28.76 dB (and against the
-    // reference 34.26 → 34.73); stage 4's raw-weight η moved by 0.04 dB over the same range.
+    // without the input blend (which pulls toward the input itself). From the model's default
+    // t = 1/(2K) to 0.94/K, near the top of the allowed [0, 1/K) (K: the kernel's taps, 125
+    // for 5×5×5 kernels, 45 for 3×3×5). Measured at 32 spp with the stage-5 default (K = 125,
+    // 0.004 → 0.0075): PSNR against the input 28.42 → 28.76 dB (against the reference
+    // 34.26 → 34.73); stage 4's raw-weight η moved by 0.04 dB over the same range.
+    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../models/default.safetensors");
+    let config = radn_nn::model::store::read_config(&model).unwrap();
+    let taps = config.kernel_taps() as f32;
     let d = tempfile::tempdir().unwrap();
     let input = format!("{}/high/frame_####.exr", sample().display());
     let mut closeness = Vec::new();
-    for t in ["0.004", "0.0075"] {
+    let thresholds = [config.default_threshold(), 0.94 / taps];
+    for t in thresholds {
+        let t = format!("{t}");
         let out = format!("{}/t{t}/dn_####.exr", d.path().display());
         radn_ok(&[
             "denoise",
@@ -79,7 +86,7 @@ fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
             "--frames",
             "3-7",
             "--threshold",
-            t,
+            &t,
             "--input-blend",
             "off",
         ]);
@@ -91,6 +98,6 @@ fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
     }
     assert!(
         closeness[1] > closeness[0] + 0.2,
-        "PSNR against the input at t = 0.004 and 0.0075: {closeness:?}"
+        "PSNR against the input at t = {thresholds:?}: {closeness:?}"
     );
 }
