@@ -7,7 +7,10 @@
 #   detail-val    model selection: the same levels, 256-spp reference of frame 4, OIDN teacher.
 #   detail-train  per scene a base count n of 16..256 spp (levels 4, n/e, n), resolution 160 or
 #                 128 px square, 6 frames, and the OIDN teacher (an independent n-spp render).
-# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4] tools/datagen/make_detail_dataset.sh [OUT]
+#   train-t       general scenes (radn_datagen/scene.py: hair, grass, the original generator)
+#                 rendered like detail-train (160 or 128 px, 6 frames, n of 16..128 spp) with the
+#                 OIDN teacher; the stage-6 default trained on 15 detail-train + 8 of these.
+# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16] tools/datagen/make_detail_dataset.sh [OUT]
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/radn}"
@@ -19,3 +22,5 @@ $py -m radn_datagen dataset --split detail-val --scenes "${DETAIL_VAL:-4}" --fra
     --extra-spp 64,128 --reference-spp 256 --reference-frames 4-4 --teacher-spp 128 --half --out "$out/detail-val"
 $py -m radn_datagen dataset --split detail-train --scenes "${DETAIL_TRAIN:-90}" --frames 1-6 --res 160x160 \
     --res-scales 1,0.8 --spp 16,32,64,128,256 --teacher-spp 1x --half --out "$out/detail-train"
+$py -m radn_datagen dataset --split train --scenes "${TRAIN_T:-16}" --frames 1-6 --res 160x160 \
+    --res-scales 1,0.8 --spp 16,32,64,128 --teacher-spp 1x --half --out "$out/train-t"

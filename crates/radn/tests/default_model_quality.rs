@@ -67,8 +67,8 @@ fn raising_the_threshold_moves_the_default_models_result_toward_its_input() {
     // 0.004 → 0.0075): PSNR against the input 28.53 → 28.84 dB (against the reference
     // 34.46 → 34.77; stage 5: 28.42 → 28.76); stage 4's raw-weight η moved by 0.04 dB over the
     // same range.
-    let model = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../../models/default.safetensors");
+    let model =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.safetensors");
     let config = radn_nn::model::store::read_config(&model).unwrap();
     let taps = config.kernel_taps() as f32;
     let d = tempfile::tempdir().unwrap();
