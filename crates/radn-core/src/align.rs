@@ -6,9 +6,17 @@ use rayon::prelude::*;
 use crate::banding::{Band, FrameBand};
 use crate::confidence::{confidence, ConfidenceParams, Guides};
 use crate::frame::Frame;
+use crate::image_ops::{clamp_fireflies3, luminance};
 use crate::motion::{compose_bands, invert_band, on_screen, round_trip_error_bands};
 use crate::plane::Plane;
 use crate::warp::{mix_with_centre, warp_band, warp_bands};
+
+/// How many times its brightest neighbour's luminance a pixel of the centre frame may be before
+/// centre mixing treats it as a firefly and copies the clamped value instead
+/// ([`clamp_fireflies3`]). A one-pixel firefly (Cycles writes them into its denoising albedo as
+/// well as its colour) spreads over the confidence guides' 3×3 mean and zeroes the side frames'
+/// confidence around it, so centre mixing is exactly where it would spread.
+pub const FIREFLY_FACTOR: f32 = 4.0;
 
 /// Options for aligning a window.
 #[derive(Clone, Copy, Debug)]
@@ -117,6 +125,10 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
         flow: Plane::zeros(w, h, 2),
     });
 
+    let mix_source = params
+        .mix_centre
+        .then(|| mixing_source(slots[r].as_ref().expect("centre is set")));
+
     // walk outwards in each direction, accumulating flow, validity and motion error
     for dir in [-1i32, 1] {
         let mut flow = Plane::zeros(w, h, 2);
@@ -214,7 +226,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 flow: flow.clone(),
             };
             if params.mix_centre {
-                mix_frame(&mut f, slots[r].as_ref().expect("centre is set"));
+                mix_frame(&mut f, mix_source.as_ref().expect("made when mixing"));
             }
             slots[idx] = Some(f);
             prev_idx = idx;
@@ -231,8 +243,8 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 let mut f = slots[near].clone().expect("nearer slot is filled first");
                 f.offset = dir * step as i32;
                 f.confidence = Plane::zeros(w, h, 1);
-                if params.mix_centre {
-                    mix_frame(&mut f, slots[r].as_ref().expect("centre is set"));
+                if let Some(src) = &mix_source {
+                    mix_frame(&mut f, src);
                 }
                 slots[idx] = Some(f);
             }
@@ -243,6 +255,49 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
             .into_iter()
             .map(|s| s.expect("every slot is filled"))
             .collect(),
+    }
+}
+
+/// The centre frame as centre mixing copies it into side frames where they are not trusted:
+/// colour and every AOV scaled per pixel so that the colour's luminance is at most
+/// [`FIREFLY_FACTOR`] times its brightest neighbour's (one scale for all of them, so the AOVs
+/// still sum to the beauty and everything the kernels filter stays linear), the albedo clamped
+/// per channel the same way. Without it a one-pixel firefly of the centre frame reaches every
+/// frame of the window wherever confidence is low, and no kernel can average it away; the centre
+/// frame itself keeps its firefly, which the network then sees against side frames without it.
+fn mixing_source(c: &AlignedFrame) -> AlignedFrame {
+    let lum = luminance(&c.color);
+    let cap = clamp_fireflies3(&lum, FIREFLY_FACTOR);
+    let scale: Vec<f32> = lum
+        .data()
+        .iter()
+        .zip(cap.data())
+        .map(|(&l, &m)| {
+            if l > m && l > 0.0 {
+                m.max(0.0) / l
+            } else {
+                1.0
+            }
+        })
+        .collect();
+    let scaled = |p: &Plane| {
+        let mut p = p.clone();
+        let n = p.pixels();
+        p.data_mut().par_chunks_mut(n).for_each(|ch| {
+            for (v, s) in ch.iter_mut().zip(&scale) {
+                *v *= s;
+            }
+        });
+        p
+    };
+    AlignedFrame {
+        color: scaled(&c.color),
+        aovs: c.aovs.iter().map(scaled).collect(),
+        albedo: c
+            .albedo
+            .as_ref()
+            .map(|a| clamp_fireflies3(a, FIREFLY_FACTOR)),
+        ..c.clone()
     }
 }
 

@@ -155,6 +155,39 @@ pub fn median3(p: &Plane) -> Plane {
     out
 }
 
+/// Every sample limited to `factor` times the brightest of its eight neighbours (edge repeat;
+/// `hi + (factor − 1)·|hi|`, so it also holds where they are negative), per channel: an
+/// isolated firefly one pixel wide is cut down to a plausible value, while every sample at most
+/// `factor` times its brightest neighbour — texture, edges, any feature two pixels wide — is
+/// kept exactly. Dark outliers are left alone: they do not spread into a neighbourhood's mean.
+pub fn clamp_fireflies3(p: &Plane, factor: f32) -> Plane {
+    let (w, h) = (p.width(), p.height());
+    let mut out = Plane::zeros(w, h, p.channels());
+    out.data_mut()
+        .par_chunks_mut(w)
+        .enumerate()
+        .for_each(|(row, dst)| {
+            let c = row / h;
+            let y = row % h;
+            let ch = p.channel(c);
+            for (x, d) in dst.iter_mut().enumerate() {
+                let mut hi = f32::NEG_INFINITY;
+                for dy in [-1isize, 0, 1] {
+                    let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
+                    for dx in [-1isize, 0, 1] {
+                        if dx == 0 && dy == 0 {
+                            continue;
+                        }
+                        let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
+                        hi = hi.max(ch[yy * w + xx]);
+                    }
+                }
+                *d = ch[y * w + x].min(hi + (factor - 1.0) * hi.abs());
+            }
+        });
+    out
+}
+
 /// Luminance (Rec. 709) of an RGB plane.
 pub fn luminance(rgb: &Plane) -> Plane {
     let n = rgb.pixels();
@@ -249,5 +282,30 @@ mod tests {
         let mut p = Plane::filled(5, 5, 1, 1.0);
         p.set(2, 2, 0, 100.0);
         assert_eq!(median3(&p).get(2, 2, 0), 1.0);
+    }
+
+    #[test]
+    fn firefly_clamp_cuts_a_lone_firefly_and_keeps_detail() {
+        // a ramp with a firefly, a dark speck, a 3x-bright texel and a line two pixels wide
+        let mut p = Plane::from_fn(9, 7, 1, |x, y, _| {
+            if x == 5 || x == 6 {
+                50.0
+            } else {
+                0.1 * (x + y + 1) as f32
+            }
+        });
+        p.set(2, 3, 0, 800.0);
+        p.set(1, 5, 0, -4.0);
+        p.set(2, 1, 0, 3.0 * p.get(3, 2, 0));
+        let d = clamp_fireflies3(&p, 4.0);
+        // the firefly is cut to 4x its brightest neighbour, (3, 4)
+        assert!((d.get(2, 3, 0) - 4.0 * 0.1 * 8.0).abs() < 1e-5);
+        for y in 0..7 {
+            for x in 0..9 {
+                if (x, y) != (2, 3) {
+                    assert_eq!(d.get(x, y, 0), p.get(x, y, 0), "({x},{y}) changed");
+                }
+            }
+        }
     }
 }

@@ -3,7 +3,9 @@
 //! is visible in both, and confidence must be ~0 exactly where it is not.
 
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
-use radn_core::banding::{frame_bands, hop_reach, window_band_rows, MotionReach};
+use radn_core::banding::{
+    frame_bands, hop_reach, window_band_rows, MotionReach, ALIGNMENT_EDGE_ROWS,
+};
 use radn_core::frame::Frame;
 use radn_core::Plane;
 
@@ -307,11 +309,108 @@ fn window_is_clamped_at_sequence_ends() {
     );
 }
 
+/// Scatters one-pixel fireflies (×300 in colour and albedo, as Cycles writes them) over frame
+/// `t`, at places that differ from frame to frame.
+fn add_fireflies(f: &mut Frame, t: usize) {
+    for y in 0..H {
+        for x in 0..W {
+            if (x * 7 + y * 13 + t * 5) % 89 == 0 {
+                for c in 0..3 {
+                    let v = f.color.get(x, y, c);
+                    f.color.set(x, y, c, 300.0 * v);
+                    let a = f.albedo.as_ref().unwrap().get(x, y, c);
+                    f.albedo.as_mut().unwrap().set(x, y, c, 300.0 * a);
+                }
+            }
+        }
+    }
+}
+
+/// A one-pixel firefly of the centre frame (in colour, albedo and AOVs, as Cycles writes it)
+/// must not reach the side frames: it zeroes their confidence around it, and centre mixing must
+/// then copy a clamped value, not the firefly. The AOVs must still sum to the colour in every
+/// frame after mixing.
+#[test]
+fn a_centre_firefly_stays_in_the_centre_frame() {
+    let scene = disc_scene;
+    let mut frames: Vec<Frame> = (-2..=2).map(|t| render(t, &scene)).collect();
+    for f in &mut frames {
+        // two AOVs that sum to the colour
+        for (k, share) in [0.3f32, 0.7].iter().enumerate() {
+            let mut plane = f.color.clone();
+            plane.data_mut().iter_mut().for_each(|v| *v *= share);
+            f.aovs.push(radn_core::frame::Aov {
+                name: format!("part{k}"),
+                channels: ["R", "G", "B"].map(|c| format!("part{k}.{c}")).to_vec(),
+                plane,
+            });
+        }
+    }
+    let clean: Vec<Frame> = frames.clone();
+    // fireflies in the centre frame: one on the wall seen by every frame, and one on the wall
+    // next to the disc, where the disc hides the wall two frames later
+    let seen = (12usize, 60usize);
+    let hidden = (57usize, 36usize);
+    assert!(in_disc(hidden.0 as f32, hidden.1 as f32, 0) > 3.0);
+    assert!(in_disc(hidden.0 as f32, hidden.1 as f32, 2) < -1.5);
+    let centre = &mut frames[2];
+    for (x, y) in [seen, hidden] {
+        for c in 0..3 {
+            let v = centre.color.get(x, y, c);
+            centre.color.set(x, y, c, 500.0 * v);
+            let a = centre.albedo.as_ref().unwrap().get(x, y, c);
+            centre.albedo.as_mut().unwrap().set(x, y, c, 500.0 * a);
+            for aov in &mut centre.aovs {
+                let v = aov.plane.get(x, y, c);
+                aov.plane.set(x, y, c, 500.0 * v);
+            }
+        }
+    }
+    let params = AlignParams::default();
+    let with = align_window(&frames.iter().map(Some).collect::<Vec<_>>(), &params);
+    let without = align_window(&clean.iter().map(Some).collect::<Vec<_>>(), &params);
+    let mut untrusted = 0;
+    for (f, g) in with.frames.iter().zip(&without.frames) {
+        if f.offset == 0 {
+            continue;
+        }
+        // around each firefly a side frame carries at most a few times what it carries without
+        for (px, py) in [seen, hidden] {
+            for (x, y) in (py - 1..=py + 1).flat_map(|y| (px - 1..=px + 1).map(move |x| (x, y))) {
+                if f.confidence.get(x, y, 0) < 0.5 {
+                    untrusted += 1;
+                }
+                for c in 0..3 {
+                    let (v, clean) = (f.color.get(x, y, c), g.color.get(x, y, c));
+                    assert!(
+                        v <= 5.0 * clean,
+                        "offset {}: ({x},{y}) carries {v}, {clean} without the firefly",
+                        f.offset
+                    );
+                }
+            }
+        }
+        // the AOVs still sum to the colour
+        for (i, v) in f.color.data().iter().enumerate() {
+            let sum: f32 = f.aovs.iter().map(|a| a.data()[i]).sum();
+            assert!(
+                (sum - v).abs() <= 1e-4 * v.abs().max(1.0),
+                "offset {}",
+                f.offset
+            );
+        }
+    }
+    // the side frames were untrusted around the fireflies: centre mixing was exercised
+    assert!(untrusted >= 20, "{untrusted}");
+    assert!(with.frames[4].confidence.get(hidden.0, hidden.1, 0) < 0.5);
+}
+
 /// What a pixel of frame t sees.
 type Scene = dyn Fn(f32, f32, i32) -> Sample;
 
 /// Banded alignment reads of each frame only the rows a band of the centre frame reaches
-/// along the motion; on the band's rows (two rows in from a cut that is not a frame edge) it
+/// along the motion; on the band's rows (`ALIGNMENT_EDGE_ROWS` in from a cut that is not a
+/// frame edge) it
 /// must give what whole-frame alignment gives, with native and inverted motion, vertical motion
 /// of several pixels per frame, and windows clamped at the sequence's start.
 #[test]
@@ -329,7 +428,9 @@ fn banded_alignment_equals_whole_frame_alignment() {
         for fields in ["both", "prev only", "next only"] {
             for start in [false, true] {
                 let mut frames: Vec<Frame> = (-2..=2).map(|t| render(t, scene)).collect();
-                for f in &mut frames {
+                for (t, f) in frames.iter_mut().enumerate() {
+                    // fireflies, some next to a band cut, exercise the guides' firefly clamp
+                    add_fireflies(f, t);
                     match fields {
                         "prev only" => f.motion_next = None,
                         "next only" => f.motion_prev = None,
@@ -349,7 +450,8 @@ fn banded_alignment_equals_whole_frame_alignment() {
                 assert!(hops[4] >= 4 || name != "pan", "{hops:?}");
                 for y0 in (0..H).step_by(13) {
                     let y1 = (y0 + 13).min(H);
-                    let centre = y0.saturating_sub(2)..(y1 + 2).min(H);
+                    let centre =
+                        y0.saturating_sub(ALIGNMENT_EDGE_ROWS)..(y1 + ALIGNMENT_EDGE_ROWS).min(H);
                     let rows = window_band_rows(centre.clone(), &hops, H);
                     let crops: Vec<Option<Frame>> = window
                         .iter()
