@@ -314,7 +314,7 @@ fn window_is_clamped_at_sequence_ends() {
 fn add_fireflies(f: &mut Frame, t: usize) {
     for y in 0..H {
         for x in 0..W {
-            if (x * 7 + y * 13 + t * 5) % 89 == 0 {
+            if (x * 7 + y * 13 + t * 5).is_multiple_of(89) {
                 for c in 0..3 {
                     let v = f.color.get(x, y, c);
                     f.color.set(x, y, c, 300.0 * v);
