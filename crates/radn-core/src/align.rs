@@ -225,8 +225,8 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 confidence: conf,
                 flow: flow.clone(),
             };
-            if params.mix_centre {
-                mix_frame(&mut f, mix_source.as_ref().expect("made when mixing"));
+            if let Some(src) = &mix_source {
+                mix_frame(&mut f, src);
             }
             slots[idx] = Some(f);
             prev_idx = idx;

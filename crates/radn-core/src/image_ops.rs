@@ -126,8 +126,9 @@ pub fn gradient(p: &Plane) -> (Plane, Plane) {
     (gx, gy)
 }
 
-/// 3×3 median of every channel (edge repeat).
-pub fn median3(p: &Plane) -> Plane {
+/// Every sample of every channel replaced by `f` of its 3×3 neighbourhood (edge repeat; row
+/// by row, the sample itself at index 4): the one loop behind the 3×3 rank filters below.
+fn map_3x3(p: &Plane, f: impl Fn(&mut [f32; 9]) -> f32 + Sync) -> Plane {
     let (w, h) = (p.width(), p.height());
     let mut out = Plane::zeros(w, h, p.channels());
     out.data_mut()
@@ -148,11 +149,18 @@ pub fn median3(p: &Plane) -> Plane {
                         k += 1;
                     }
                 }
-                v.sort_unstable_by(f32::total_cmp);
-                *d = v[4];
+                *d = f(&mut v);
             }
         });
     out
+}
+
+/// 3×3 median of every channel (edge repeat).
+pub fn median3(p: &Plane) -> Plane {
+    map_3x3(p, |v| {
+        v.sort_unstable_by(f32::total_cmp);
+        v[4]
+    })
 }
 
 /// Every sample limited to `factor` times the brightest of its eight neighbours (edge repeat;
@@ -161,31 +169,13 @@ pub fn median3(p: &Plane) -> Plane {
 /// `factor` times its brightest neighbour — texture, edges, any feature two pixels wide — is
 /// kept exactly. Dark outliers are left alone: they do not spread into a neighbourhood's mean.
 pub fn clamp_fireflies3(p: &Plane, factor: f32) -> Plane {
-    let (w, h) = (p.width(), p.height());
-    let mut out = Plane::zeros(w, h, p.channels());
-    out.data_mut()
-        .par_chunks_mut(w)
-        .enumerate()
-        .for_each(|(row, dst)| {
-            let c = row / h;
-            let y = row % h;
-            let ch = p.channel(c);
-            for (x, d) in dst.iter_mut().enumerate() {
-                let mut hi = f32::NEG_INFINITY;
-                for dy in [-1isize, 0, 1] {
-                    let yy = (y as isize + dy).clamp(0, h as isize - 1) as usize;
-                    for dx in [-1isize, 0, 1] {
-                        if dx == 0 && dy == 0 {
-                            continue;
-                        }
-                        let xx = (x as isize + dx).clamp(0, w as isize - 1) as usize;
-                        hi = hi.max(ch[yy * w + xx]);
-                    }
-                }
-                *d = ch[y * w + x].min(hi + (factor - 1.0) * hi.abs());
-            }
-        });
-    out
+    map_3x3(p, |v| {
+        let hi = v[..4]
+            .iter()
+            .chain(&v[5..])
+            .fold(f32::NEG_INFINITY, |m, &x| m.max(x));
+        v[4].min(hi + (factor - 1.0) * hi.abs())
+    })
 }
 
 /// Luminance (Rec. 709) of an RGB plane.
