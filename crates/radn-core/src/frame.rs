@@ -91,6 +91,11 @@ pub struct Frame {
     /// renderer's denoised layer or Intel Open Image Denoise's result ([`crate::guide`]).
     /// Never read by [`FrameReader`] itself; a sequence job attaches it.
     pub guide: Option<Plane>,
+    /// Per-frame features a denoising method computed once for this frame in
+    /// [`crate::denoiser::WindowDenoiser::prepare`] (a network's per-frame layers), so that the
+    /// windows the frame belongs to reuse them instead of computing them again. Never read from
+    /// files.
+    pub features: Option<Plane>,
     /// The full channel names the beauty was read from (R, G, B), for writing results back.
     pub color_channels: Vec<String>,
     /// The full channel names of the renderer's own denoised beauty, where the file holds one
@@ -150,6 +155,7 @@ impl Frame {
                 })
                 .collect(),
             guide: cut(&self.guide),
+            features: cut(&self.features),
             color_channels: self.color_channels.clone(),
             denoised_channels: self.denoised_channels.clone(),
             alpha_channel: self.alpha_channel.clone(),
@@ -170,6 +176,7 @@ impl Frame {
             motion_next: None,
             aovs: Vec::new(),
             guide: None,
+            features: None,
             color_channels: vec!["R".into(), "G".into(), "B".into()],
             denoised_channels: None,
             alpha_channel: None,
@@ -420,6 +427,7 @@ impl FrameReader {
             motion_next,
             aovs,
             guide,
+            features: None,
             denoised_channels,
             color_channels,
             alpha_channel,

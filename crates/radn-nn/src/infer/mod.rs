@@ -18,6 +18,7 @@ use radn_core::classic::wiener::{
 };
 use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
+use radn_core::warp::{mix_with_centre, warp_plane};
 use radn_core::Plane;
 
 use crate::infer::input::{network_input, FeatureScales, Region};
@@ -98,10 +99,110 @@ impl NetworkDenoiser {
         }
     }
 
-    /// Denoises an aligned window: colour, then every AOV and alpha with the same kernels.
+    /// Denoises an aligned window: colour, then every AOV and alpha with the same kernels. A
+    /// network with a frame-local stem runs it here on the aligned frames, as in training;
+    /// [`WindowDenoiser::denoise`] runs it on the frames as rendered and warps its features.
     pub fn denoise_aligned(&self, win: &AlignedWindow) -> Denoised {
+        self.denoise_aligned_with(win, None)
+    }
+
+    /// [`NetworkDenoiser::denoise_aligned`] with every window frame's stem features warped onto
+    /// the centre frame (`stems`, one plane per frame; [`NetworkDenoiser::warped_stems`]) for a
+    /// network with a frame-local stem.
+    pub fn denoise_aligned_with(&self, win: &AlignedWindow, stems: Option<&[Plane]>) -> Denoised {
         let h = win.centre().color.height();
-        self.denoise_rows(win, FeatureScales::of(win), 0..h)
+        self.denoise_rows(win, stems, FeatureScales::of(win), 0..h)
+    }
+
+    /// The stem features of a frame-local network ([`crate::model::config::NetConfig::frame_local_stem`])
+    /// for a whole frame as rendered, normalised by the frame's own exposure and depth: computed
+    /// tile by tile with the stem's halo, so only one tile's maps exist at a time besides the
+    /// result.
+    pub fn frame_stem(&self, frame: &Frame) -> Plane {
+        let (w, h) = (frame.width(), frame.height());
+        let alone = AlignedWindow {
+            frames: vec![radn_core::align::AlignedFrame {
+                offset: 0,
+                color: frame.color.clone(),
+                alpha: None,
+                albedo: frame.albedo.clone(),
+                normal: frame.normal.clone(),
+                depth: frame.depth.clone(),
+                aovs: Vec::new(),
+                guide: frame.guide.clone(),
+                confidence: Plane::filled(w, h, 1, 1.0),
+                flow: Plane::zeros(w, h, 2),
+            }],
+        };
+        let scales = FeatureScales::of(&alone);
+        let halo = self.denoiser.stem_radius();
+        let side = if self.tile == 0 { w.max(h) } else { self.tile };
+        let c = self.denoiser.stem_channels();
+        let mut out = Plane::zeros(w, h, c);
+        for y0 in (0..h).step_by(side) {
+            for x0 in (0..w).step_by(side) {
+                let (x1, y1) = ((x0 + side).min(w), (y0 + side).min(h));
+                let r = Region {
+                    x0: x0.saturating_sub(halo),
+                    y0: y0.saturating_sub(halo),
+                    x1: (x1 + halo).min(w),
+                    y1: (y1 + halo).min(h),
+                };
+                let (rw, rh) = r.size();
+                let input = timed(Stage::Inputs, || {
+                    network_input(&alone, scales, r, &self.denoiser.config.inputs)
+                });
+                let x = Tensor::<4>::from_data(
+                    TensorData::new(input, [1, self.denoiser.config.input_channels(), rh, rw]),
+                    &self.device,
+                );
+                let stem = self.denoiser.stem(x).to_data();
+                let stem = stem.as_slice::<f32>().expect("f32 features");
+                for ch in 0..c {
+                    for y in y0..y1 {
+                        let src = &stem[ch * rw * rh + (y - r.y0) * rw + (x0 - r.x0)..][..x1 - x0];
+                        out.channel_mut(ch)[y * w + x0..y * w + x1].copy_from_slice(src);
+                    }
+                }
+            }
+        }
+        out
+    }
+
+    /// Every frame's stem features warped onto the centre frame of the aligned window `win`
+    /// of `window` and mixed with the centre frame's by confidence, as alignment does with the
+    /// inputs: a frame's own features ([`Frame::features`], computed once when it entered its
+    /// first window) where it has them, computed here where it has not. Frames beyond the
+    /// sequence ends have confidence 0 and so take the centre frame's features.
+    pub fn warped_stems<'f>(
+        &self,
+        window: &[Option<&'f Frame>],
+        win: &AlignedWindow,
+    ) -> Vec<Plane> {
+        let own = |f: &'f Frame| -> std::borrow::Cow<'f, Plane> {
+            match &f.features {
+                Some(p) => std::borrow::Cow::Borrowed(p),
+                None => std::borrow::Cow::Owned(self.frame_stem(f)),
+            }
+        };
+        let r = window.len() / 2;
+        let centre = own(window[r].expect("the centre frame of a window exists"));
+        timed(Stage::Align, || {
+            win.frames
+                .iter()
+                .zip(window)
+                .enumerate()
+                .map(|(k, (aligned, frame))| match frame {
+                    _ if k == r => centre.clone().into_owned(),
+                    Some(f) if aligned.confidence.data().iter().any(|&c| c > 0.0) => {
+                        let mut warped = warp_plane(&own(f), &aligned.flow);
+                        mix_with_centre(&mut warped, &centre, &aligned.confidence);
+                        warped
+                    }
+                    _ => centre.clone().into_owned(),
+                })
+                .collect()
+        })
     }
 
     /// Denoises rows `rows` of an aligned window (a band of a frame whose whole-frame
@@ -110,17 +211,18 @@ impl NetworkDenoiser {
     pub fn denoise_rows(
         &self,
         win: &AlignedWindow,
+        stems: Option<&[Plane]>,
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
         let blend_params = self.refine.and_then(|b| b.params(scales.noise_level));
         let out = match &blend_params {
-            None => self.filtered_rows(win, scales, rows.clone()),
+            None => self.filtered_rows(win, stems, scales, rows.clone()),
             Some(p) => {
                 // the blend's boxes read the result `radius` rows beyond `rows`
                 let h = win.centre().color.height();
                 let wide = rows.start.saturating_sub(p.radius)..(rows.end + p.radius).min(h);
-                let filtered = self.filtered_rows(win, scales, wide.clone());
+                let filtered = self.filtered_rows(win, stems, scales, wide.clone());
                 timed(Stage::InputBlend, || {
                     let input = centre_values(win, wide.clone());
                     let var = window_noise_variance(win, wide.clone());
@@ -157,6 +259,7 @@ impl NetworkDenoiser {
     fn filtered_rows(
         &self,
         win: &AlignedWindow,
+        stems: Option<&[Plane]>,
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Plane {
@@ -195,7 +298,7 @@ impl NetworkDenoiser {
         }
         let eps = self.denoiser.config.demodulate;
         let inputs = &self.denoiser.config.inputs;
-        self.run_tiled(win, scales, rows, values, chans, |p, beta, v, x| {
+        self.run_tiled(win, stems, scales, rows, values, chans, |p, beta, v, x| {
             let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
             let v = match beta {
                 Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
@@ -213,7 +316,8 @@ impl NetworkDenoiser {
         let t = win.frames.len();
         let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
         let h = win.centre().color.height();
-        let mass = self.run_tiled(win, FeatureScales::of(win), 0..h, zeros, 1, |p, _, _, _| {
+        let scales = FeatureScales::of(win);
+        let mass = self.run_tiled(win, None, scales, 0..h, zeros, 1, |p, _, _, _| {
             p.frame_mass(t)
         });
         (0..t).map(|k| mass.select_channels(k, 1)).collect()
@@ -225,9 +329,11 @@ impl NetworkDenoiser {
     /// from `values(region)` and `features` the network input of the regions. Consecutive tiles
     /// whose regions have the same size share one network call, up to `batch` of them. Features
     /// and values exist for one call's tiles at a time, never for the whole frame.
+    #[allow(clippy::too_many_arguments)]
     fn run_tiled(
         &self,
         win: &AlignedWindow,
+        stems: Option<&[Plane]>,
         scales: FeatureScales,
         rows: Range<usize>,
         values: impl Fn(Region) -> Vec<f32>,
@@ -239,7 +345,9 @@ impl NetworkDenoiser {
         let mut out: Option<Plane> = None;
         for call in batches(&tiles, self.batch) {
             let group = &tiles[call];
-            self.run_group(win, scales, group, &values, chans, &f, &mut out, w, &rows);
+            self.run_group(
+                win, stems, scales, group, &values, chans, &f, &mut out, w, &rows,
+            );
         }
         out.expect("at least one tile")
     }
@@ -286,6 +394,7 @@ impl NetworkDenoiser {
     fn run_group(
         &self,
         win: &AlignedWindow,
+        stems: Option<&[Plane]>,
         scales: FeatureScales,
         group: &[Tile],
         values: &impl Fn(Region) -> Vec<f32>,
@@ -298,10 +407,14 @@ impl NetworkDenoiser {
         let t = win.frames.len();
         let b = group.len();
         let (rw, rh) = group[0].region.size();
-        let (feats, vals) = timed(Stage::Inputs, || {
+        let (feats, vals, stem) = timed(Stage::Inputs, || {
             let mut feats = Vec::new();
             let mut vals = Vec::new();
+            let mut stem = Vec::new();
             for tile in group {
+                for plane in stems.into_iter().flatten() {
+                    tile.region.crop(plane, &mut stem);
+                }
                 feats.extend(network_input(
                     win,
                     scales,
@@ -310,14 +423,23 @@ impl NetworkDenoiser {
                 ));
                 vals.extend(values(tile.region));
             }
-            (feats, vals)
+            (feats, vals, stem)
         });
         let x = Tensor::<5>::from_data(
             TensorData::new(feats, [b, t, self.denoiser.config.input_channels(), rh, rw]),
             &self.device,
         );
         let v = Tensor::<5>::from_data(TensorData::new(vals, [b, t, chans, rh, rw]), &self.device);
-        let (prediction, beta) = self.denoiser.predict_guided(x.clone(), self.threshold);
+        let (prediction, beta) = match stems {
+            Some(_) => {
+                let c = self.denoiser.stem_channels();
+                let stem =
+                    Tensor::<5>::from_data(TensorData::new(stem, [b, t, c, rh, rw]), &self.device);
+                self.denoiser
+                    .predict_with_stem(x.clone(), stem, self.threshold)
+            }
+            None => self.denoiser.predict_guided(x.clone(), self.threshold),
+        };
         let res = timed(Stage::Kernels, || f(&prediction, beta, v, &x));
         let oc = res.dims()[1];
         let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
@@ -362,6 +484,12 @@ struct Tile {
 }
 
 impl NetworkDenoiser {
+    /// Whether the network's per-frame layers run once per frame as rendered and their
+    /// features are warped into each window ([`crate::model::config::NetConfig::frame_local_stem`]).
+    pub fn reuses_frame_layers(&self) -> bool {
+        self.denoiser.config.frame_local_stem
+    }
+
     /// A guided network needs every frame's guide: an error naming the first frame without
     /// one. A network that reads no guide ignores guides.
     fn check_guides<'f>(&self, frames: impl Iterator<Item = &'f Frame>) -> radn_core::Result<()> {
@@ -385,10 +513,23 @@ impl WindowDenoiser for NetworkDenoiser {
         self.denoiser.config.frames / 2
     }
 
+    fn prepare(&self, frame: &mut Frame, _prev: Option<&Frame>, _next: Option<&Frame>) {
+        if self.reuses_frame_layers() {
+            frame.features = Some(self.frame_stem(frame));
+        }
+    }
+
+    fn prepares_frames(&self) -> bool {
+        self.reuses_frame_layers()
+    }
+
     fn denoise(&self, window: &[Option<&Frame>]) -> radn_core::Result<Denoised> {
         self.check_guides(window.iter().flatten().copied())?;
         let win = timed(Stage::Align, || align_window(window, &self.align));
-        let out = self.denoise_aligned(&win);
+        let stems = self
+            .reuses_frame_layers()
+            .then(|| self.warped_stems(window, &win));
+        let out = self.denoise_aligned_with(&win, stems.as_deref());
         log_stages(
             window
                 .get(window.len() / 2)
@@ -401,8 +542,10 @@ impl WindowDenoiser for NetworkDenoiser {
 
     fn banded(&self) -> Option<&dyn BandDenoiser> {
         // tiles of a receptive field's halo make bands possible; UNets and `--tile 0` need
-        // whole frames, and multi-scale kernels too: a band's rows do not start on their grid
+        // whole frames, and multi-scale kernels too: a band's rows do not start on their grid;
+        // a frame-local stem is computed once per whole frame
         (self.tile > 0
+            && !self.reuses_frame_layers()
             && self.denoiser.receptive_radius().is_some()
             && self.denoiser.tile_grid() == 1)
             .then_some(self as _)
@@ -445,7 +588,7 @@ impl BandDenoiser for NetworkDenoiser {
             }
         }
         let band = out.clone();
-        let result = self.denoise_rows(&win, scales, out);
+        let result = self.denoise_rows(&win, None, scales, out);
         tracing::debug!(
             frame = %centre.names.path.display(),
             rows = ?band,
@@ -517,6 +660,169 @@ mod tests {
         .iter()
         .flat_map(|(a, b)| a.data().iter().zip(b.data()).map(|(x, y)| (x - y).abs()))
         .fold(0.0f32, f32::max)
+    }
+
+    /// The shipped default model (trained: its kernels depend strongly on the features).
+    fn shipped(device: &Device) -> Denoiser {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/default.safetensors");
+        crate::model::store::load(&path, device).unwrap()
+    }
+
+    /// `n` frames of a noisy textured surface moving by a sub-pixel step per frame, with albedo,
+    /// normal, depth and motion both ways, named `frame0`, `frame1`, …
+    fn moving_frames(w: usize, h: usize, n: usize) -> Vec<Frame> {
+        let (vx, vy) = (0.6f32, -0.35f32);
+        let texture = |u: f32, v: f32, c: usize| {
+            0.5 + 0.4 * (u * 0.7 + c as f32).sin() * (v * 0.45 + 0.3 * c as f32).cos()
+        };
+        (0..n)
+            .map(|t| {
+                let at = |x: usize, y: usize| (x as f32 - vx * t as f32, y as f32 - vy * t as f32);
+                let grain = |x: usize, y: usize, c: usize| {
+                    let k = (x * 73 + y * 151 + c * 29 + t * 977) as u32;
+                    let k = k.wrapping_mul(2_654_435_761) >> 16;
+                    (k % 1000) as f32 / 1000.0 - 0.5
+                };
+                let mut f = Frame::synthetic(Plane::from_fn(w, h, 3, |x, y, c| {
+                    let (u, v) = at(x, y);
+                    texture(u, v, c) * (1.0 + 0.8 * grain(x, y, c))
+                }));
+                f.albedo = Some(Plane::from_fn(w, h, 3, |x, y, c| {
+                    let (u, v) = at(x, y);
+                    texture(u, v, c)
+                }));
+                f.normal = Some(Plane::from_fn(w, h, 3, |_, _, c| f32::from(c == 2)));
+                f.depth = Some(Plane::filled(w, h, 1, 4.0));
+                // content moves by +v per frame: a point was at p − v one frame earlier
+                f.motion_prev = Some(Plane::from_fn(
+                    w,
+                    h,
+                    2,
+                    |_, _, c| if c == 0 { -vx } else { -vy },
+                ));
+                f.motion_next = Some(Plane::from_fn(
+                    w,
+                    h,
+                    2,
+                    |_, _, c| if c == 0 { vx } else { vy },
+                ));
+                f.path = format!("frame{t}").into();
+                f
+            })
+            .collect()
+    }
+
+    #[test]
+    fn frame_layers_computed_once_equal_recomputing_them_in_every_window() {
+        let device = Device::flex();
+        let d = shipped(&device).with_frame_local_stem(&device).unwrap();
+        let halo = d.receptive_radius().unwrap();
+        let frames = moving_frames(2 * halo + 70, 44, 7);
+        let mut n = NetworkDenoiser::new(d, device);
+        assert!(n.prepares_frames() && n.banded().is_none());
+        // each frame's stem once, in tiles of 16 px (its halo is 7 px)
+        n.tile = 16;
+        let prepared: Vec<Frame> = frames
+            .iter()
+            .map(|f| {
+                let mut p = f.clone();
+                n.prepare(&mut p, None, None);
+                p
+            })
+            .collect();
+        let stem = |k: usize| prepared[k].features.as_ref().expect("prepared").clone();
+        assert_eq!(stem(0).channels(), n.denoiser.stem_channels());
+        assert_ne!(
+            stem(0).data(),
+            stem(1).data(),
+            "frames differ, so do their features"
+        );
+        let len = frames.len();
+        for pos in 0..len {
+            let idx = radn_core::align::window_indices(pos, len, 2);
+            fn pick<'a>(idx: &[Option<usize>], set: &'a [Frame]) -> Vec<Option<&'a Frame>> {
+                idx.iter().map(|i| i.map(|i| &set[i])).collect()
+            }
+            // reused: the prepared features, windows in tiles of 32 px; recomputed: every frame's
+            // stem again for this window, whole frames at once
+            n.tile = 32;
+            let reused = n.denoise(&pick(&idx, &prepared)).unwrap();
+            n.tile = 0;
+            let recomputed = n.denoise(&pick(&idx, &frames)).unwrap();
+            let worst = reused
+                .color
+                .data()
+                .iter()
+                .zip(recomputed.color.data())
+                .map(|(a, b)| (a - b).abs())
+                .fold(0.0f32, f32::max);
+            assert!(
+                worst < 1e-5,
+                "frame {pos}: reused and recomputed differ by {worst}"
+            );
+        }
+    }
+
+    #[test]
+    fn splitting_the_stem_keeps_a_trusted_frames_kernels() {
+        let device = Device::flex();
+        let whole = shipped(&device);
+        let split = whole.clone().with_frame_local_stem(&device).unwrap();
+        let halo = whole.receptive_radius().unwrap();
+        let (b, t, c, s) = (1, 5, whole.config.input_channels(), 2 * halo + 12);
+        // inputs in their usual ranges, confidence 1 and noise estimate 0: what the split folds
+        let (conf, count) = whole.config.inputs.window_channels();
+        let x = Tensor::<5>::from_data(
+            TensorData::new(
+                (0..b * t * c * s * s)
+                    .map(|i| {
+                        let ch = (i / (s * s)) % c;
+                        match ch {
+                            _ if ch == conf => 1.0,
+                            _ if ch > conf && ch < conf + count => 0.0,
+                            _ => ((i * 7919 % 1000) as f32 / 1000.0) * 0.8,
+                        }
+                    })
+                    .collect::<Vec<f32>>(),
+                [b, t, c, s, s],
+            ),
+            &device,
+        );
+        let values = Tensor::<5>::from_data(
+            TensorData::new(
+                (0..b * t * 3 * s * s)
+                    .map(|i| (i * 613 % 997) as f32 / 997.0)
+                    .collect::<Vec<f32>>(),
+                [b, t, 3, s, s],
+            ),
+            &device,
+        );
+        let out = |d: &Denoiser| {
+            let p = d.predict(x.clone(), d.config.default_threshold());
+            p.apply(values.clone())
+                .into_data()
+                .try_into_vec::<f32>()
+                .unwrap()
+        };
+        let (a, bb) = (out(&whole), out(&split));
+        // pixels farther than the receptive field from the edges (the zero padding at the
+        // edges reads no confidence; the folded bias does)
+        let mut worst = 0.0f32;
+        for ch in 0..3 {
+            for y in halo..s - halo {
+                for xx in halo..s - halo {
+                    let i = (ch * s + y) * s + xx;
+                    worst = worst.max((a[i] - bb[i]).abs());
+                }
+            }
+        }
+        assert!(
+            worst < 1e-4,
+            "split and whole stems differ by {worst} inside"
+        );
+        // and the window's channels still reach the kernels through the new 1×1 layer's place
+        assert!(split.config.frame_local_stem && split.stem_channels() > 0);
     }
 
     #[test]

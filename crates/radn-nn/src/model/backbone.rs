@@ -2,13 +2,15 @@
 //! connections between frames are the Robust Average blocks.
 
 use burn::module::Module;
-use burn::nn::conv::Conv2d;
+use burn::nn::conv::{Conv2d, Conv2dConfig};
+use burn::nn::PaddingConfig2d;
 use burn::tensor::module::{avg_pool2d, interpolate};
 use burn::tensor::ops::{InterpolateMode, InterpolateOptions};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use crate::model::config::Backbone;
 use crate::model::cpu::conv::{conv2d, HostConv};
+use crate::model::cpu::is_cpu_inference;
 use crate::model::layers::{conv3, conv_flops, widen_conv_input, DoubleConv, ResBlock};
 use crate::model::ra_block::RobustAverage;
 use crate::profile::{timed, Stage};
@@ -23,6 +25,10 @@ pub struct ResNet {
     ra_after: Vec<usize>,
     skips_from: Vec<usize>,
     width: usize,
+    /// With a frame-local stem ([`crate::model::config::NetConfig::frame_local_stem`]): the 1×1
+    /// convolution that adds the window's own input channels to the stem's features before the
+    /// first RA block.
+    window_in: Option<Conv2d>,
 }
 
 impl ResNet {
@@ -47,7 +53,73 @@ impl ResNet {
             ra_after: ra_after.to_vec(),
             skips_from: skips_from.to_vec(),
             width,
+            window_in: None,
         }
+    }
+
+    /// Residual blocks before the first RA block (all of them without one): with the input
+    /// layer, the layers that see one frame only.
+    pub fn stem_blocks(&self) -> usize {
+        self.ra_after.first().copied().unwrap_or(self.blocks.len())
+    }
+
+    /// The radius in pixels of what one stem feature reads: the input layer and two 3×3
+    /// convolutions per stem block.
+    pub fn stem_radius(&self) -> usize {
+        1 + 2 * self.stem_blocks()
+    }
+
+    /// Channels of the stem's features.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// Makes the stem frame-local: the input layer keeps the weights of the frame's own channels
+    /// `keep` (ranges of its current inputs) and drops those of the window's channels, whose
+    /// value where a frame is fully trusted (`window_at_rest`, one per dropped channel, in order)
+    /// is folded into its bias; a 1×1 convolution from the `window` dropped channels, starting at
+    /// zero, adds them back after the stem. A fine-tune from a model without the split starts
+    /// near it.
+    pub fn split_window_inputs(
+        &mut self,
+        keep: &[std::ops::Range<usize>],
+        dropped: std::ops::Range<usize>,
+        window_at_rest: &[f32],
+        device: &Device,
+    ) {
+        let w = self.input.weight.val();
+        let [cout, _, _, _] = w.dims();
+        let kept = keep
+            .iter()
+            .map(|r| w.clone().narrow(1, r.start, r.len()))
+            .collect();
+        let rest = w.narrow(1, dropped.start, dropped.len());
+        // the dropped channels' contribution at rest, summed over the taps, joins the bias
+        let at_rest =
+            Tensor::<1>::from_floats(window_at_rest, device).reshape([1, dropped.len(), 1, 1]);
+        let folded = (rest * at_rest)
+            .sum_dim(3)
+            .sum_dim(2)
+            .sum_dim(1)
+            .reshape([cout]);
+        let bias = match &self.input.bias {
+            Some(b) => b.val() + folded,
+            None => folded,
+        };
+        self.input.weight = burn::module::Param::from_tensor(Tensor::cat(kept, 1).detach());
+        self.input.bias = Some(burn::module::Param::from_tensor(bias.detach()));
+        let mut conv = Conv2dConfig::new([dropped.len(), self.width], [1, 1])
+            .with_padding(PaddingConfig2d::Same)
+            .init(device);
+        conv.weight = burn::module::Param::from_tensor(Tensor::zeros(
+            [self.width, dropped.len(), 1, 1],
+            device,
+        ));
+        conv.bias = Some(burn::module::Param::from_tensor(Tensor::zeros(
+            [self.width],
+            device,
+        )));
+        self.window_in = Some(conv);
     }
 
     /// Channels of the features handed to the head.
@@ -58,14 +130,18 @@ impl ResNet {
     /// Forward FLOPs for one window of `frames` frames of `h × w` pixels.
     pub fn flops(&self, h: usize, w: usize, frames: usize) -> f64 {
         let px = h * w;
-        let per_frame =
-            conv_flops(&self.input, px) + self.blocks.iter().map(|b| b.flops(px)).sum::<f64>();
+        let per_frame = conv_flops(&self.input, px)
+            + self.blocks.iter().map(|b| b.flops(px)).sum::<f64>()
+            + self.window_in.as_ref().map_or(0.0, |c| conv_flops(c, px));
         frames as f64 * per_frame + self.ra.iter().map(|r| r.flops(px)).sum::<f64>()
     }
 
     /// Every convolution weight by layer name, in forward order.
     pub fn weights(&self) -> Vec<(String, Tensor<4>)> {
         let mut v = vec![("input".to_string(), self.input.weight.val())];
+        if let Some(c) = &self.window_in {
+            v.push(("window_in".to_string(), c.weight.val()));
+        }
         let mut next_ra = 0;
         for (i, block) in self.blocks.iter().enumerate() {
             v.extend(block.weights(&format!("block{}", i + 1)));
@@ -79,20 +155,73 @@ impl ResNet {
 
     /// `[batch · frames, input channels, H, W]` → head features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
+        let stem = self.stem(x);
+        self.after_stem(stem, None)
+    }
+
+    /// The stem: the input layer and the blocks before the first RA block, frame by frame
+    /// (`[n, input channels, H, W]` → `[n, width, H, W]`).
+    pub fn stem(&self, x: Tensor<4>) -> Tensor<4> {
         if HostConv::applies(&self.input, &x.device()) {
-            return self.forward_on_host(x);
+            let device = x.device();
+            let [n, _, hh, ww] = x.dims();
+            let input = x.into_data();
+            let input = input.as_slice::<f32>().expect("f32 input");
+            let h = self.stem_on_host(input, [n, hh, ww]);
+            return Tensor::from_data(TensorData::new(h, [n, self.width, hh, ww]), &device);
         }
-        self.forward_with_burn(x)
+        self.stem_with_burn(x)
+    }
+
+    /// [`ResNet::stem`] as burn operations (training, other backends).
+    fn stem_with_burn(&self, x: Tensor<4>) -> Tensor<4> {
+        let mut h = conv2d(&self.input, x, true);
+        for block in &self.blocks[..self.stem_blocks()] {
+            h = block.forward(h);
+        }
+        h
     }
 
     /// [`ResNet::forward`] as burn operations (training, other backends).
+    #[cfg(test)]
     fn forward_with_burn(&self, x: Tensor<4>) -> Tensor<4> {
-        let mut h = conv2d(&self.input, x, true);
+        self.after_stem_with_burn(self.stem_with_burn(x), None)
+    }
+
+    /// The rest of the backbone from the stem's features `[n, width, H, W]`: the window's
+    /// own inputs `window` (`[n, c, H, W]`, for a frame-local stem) added through their 1×1
+    /// convolution, then the RA blocks and the blocks between them → head features.
+    pub fn after_stem(&self, h: Tensor<4>, window: Option<Tensor<4>>) -> Tensor<4> {
+        let device = h.device();
+        if is_cpu_inference(&device) {
+            let [n, _, hh, ww] = h.dims();
+            let mut h = h.into_data().try_into_vec::<f32>().expect("f32 maps");
+            if let (Some(conv), Some(x)) = (&self.window_in, window) {
+                let x = x.into_data();
+                let x = x.as_slice::<f32>().expect("f32 input");
+                HostConv::of(conv).run_add(x, n, hh, ww, &mut h);
+            }
+            let out = self.rest_on_host(h, [n, hh, ww]);
+            let c = self.out_channels();
+            return Tensor::from_data(TensorData::new(out, [n, c, hh, ww]), &device);
+        }
+        self.after_stem_with_burn(h, window)
+    }
+
+    /// [`ResNet::after_stem`] as burn operations (training, other backends).
+    fn after_stem_with_burn(&self, h: Tensor<4>, window: Option<Tensor<4>>) -> Tensor<4> {
+        let mut h = h;
+        if let (Some(conv), Some(x)) = (&self.window_in, window) {
+            h = h + conv2d(conv, x, false);
+        }
         let mut skips = Vec::new();
         let mut next_ra = 0;
-        for (i, block) in self.blocks.iter().enumerate() {
-            h = block.forward(h);
-            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i + 1 {
+        let s = self.stem_blocks();
+        for i in s..=self.blocks.len() {
+            if i > s {
+                h = self.blocks[i - 1].forward(h);
+            }
+            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i {
                 h = self.ra[next_ra].forward(h);
                 if self.skips_from.contains(&(next_ra + 1)) {
                     skips.push(h.clone());
@@ -106,20 +235,27 @@ impl ResNet {
 }
 
 impl ResNet {
-    /// [`ResNet::forward`] on `f32` slices for CPU inference: the latent maps stay on the host
-    /// from the input layer to the head, each residual add fused into its second
-    /// convolution, instead of a tensor round trip and a separate add per convolution.
-    fn forward_on_host(&self, x: Tensor<4>) -> Tensor<4> {
-        let device = x.device();
-        let [n, _, hh, ww] = x.dims();
-        let input = x.into_data();
-        let input = input.as_slice::<f32>().expect("f32 input");
+    /// [`ResNet::stem`] on `f32` slices for CPU inference: the maps stay on the host, each
+    /// residual add fused into its second convolution.
+    fn stem_on_host(&self, input: &[f32], [n, hh, ww]: [usize; 3]) -> Vec<f32> {
         let mut h = HostConv::of(&self.input).run(input, n, hh, ww, true);
+        for block in &self.blocks[..self.stem_blocks()] {
+            block.forward_on_host(&mut h, [n, hh, ww]);
+        }
+        h
+    }
+
+    /// [`ResNet::after_stem`]'s RA blocks and later blocks on the host, and the head features
+    /// (per image, the maps of every skip then the last, along channels).
+    fn rest_on_host(&self, mut h: Vec<f32>, [n, hh, ww]: [usize; 3]) -> Vec<f32> {
         let mut skips = Vec::new();
         let mut next_ra = 0;
-        for (i, block) in self.blocks.iter().enumerate() {
-            block.forward_on_host(&mut h, [n, hh, ww]);
-            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i + 1 {
+        let s = self.stem_blocks();
+        for i in s..=self.blocks.len() {
+            if i > s {
+                self.blocks[i - 1].forward_on_host(&mut h, [n, hh, ww]);
+            }
+            if next_ra < self.ra_after.len() && self.ra_after[next_ra] == i {
                 h = self.ra[next_ra].forward_on_host(&h, [n, self.width, hh, ww]);
                 if self.skips_from.contains(&(next_ra + 1)) {
                     skips.push(h.clone());
@@ -128,21 +264,17 @@ impl ResNet {
             }
         }
         skips.push(h);
-        // per image, the maps of every skip then the last, along channels
         let per_map = self.width * hh * ww;
-        let out = if skips.len() == 1 {
-            skips.pop().expect("one map")
-        } else {
-            let mut out = Vec::with_capacity(n * per_map * skips.len());
-            for image in 0..n {
-                for map in &skips {
-                    out.extend_from_slice(&map[image * per_map..][..per_map]);
-                }
+        if skips.len() == 1 {
+            return skips.pop().expect("one map");
+        }
+        let mut out = Vec::with_capacity(n * per_map * skips.len());
+        for image in 0..n {
+            for map in &skips {
+                out.extend_from_slice(&map[image * per_map..][..per_map]);
             }
-            out
-        };
-        let c = self.width * (self.skips_from.len() + 1);
-        Tensor::from_data(TensorData::new(out, [n, c, hh, ww]), &device)
+        }
+        out
     }
 }
 
@@ -303,6 +435,22 @@ impl FrameNet {
                 let at = ra_scales.as_deref().unwrap_or(&all);
                 FrameNet::UNet(UNet::new(cin, widths, at, f, device))
             }
+        }
+    }
+
+    /// The ResNet, for the operations only it has (a frame-local stem); `None` for a UNet.
+    pub fn resnet(&self) -> Option<&ResNet> {
+        match self {
+            FrameNet::ResNet(n) => Some(n),
+            FrameNet::UNet(_) => None,
+        }
+    }
+
+    /// [`FrameNet::resnet`], mutable.
+    pub fn resnet_mut(&mut self) -> Option<&mut ResNet> {
+        match self {
+            FrameNet::ResNet(n) => Some(n),
+            FrameNet::UNet(_) => None,
         }
     }
 

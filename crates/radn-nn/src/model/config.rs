@@ -107,6 +107,17 @@ pub struct NetConfig {
     /// ([`crate::model::guide_blend`]); alpha is not blended. Off: the guide is an input only.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub guide_blend: bool,
+    /// Frame-local stem (issue 20): the layers before the first RA block read only what a
+    /// frame holds itself (colour, albedo, normal, depth, guide, each frame normalised by its
+    /// own exposure and depth at inference), and the window's own inputs (alignment confidence,
+    /// the noise estimate) join after them through a 1×1 convolution. Inference then computes
+    /// those layers once per frame, on the frame as rendered, and warps their features with the
+    /// window (centre mixing included) instead of warping the inputs, so the five windows a frame
+    /// belongs to share one computation. Training runs them on the aligned window, which equals
+    /// warping the features where motion is a whole-pixel shift and approximates it elsewhere.
+    /// ResNet backbones with RA blocks only.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub frame_local_stem: bool,
     /// Optional input features beyond the base ones ([`INPUT_CHANNELS`]): exposure
     /// normalisation and a per-pixel noise estimate. Absent in models from before them.
     #[serde(default, skip_serializing_if = "InputConfig::is_base")]
@@ -163,6 +174,24 @@ impl InputConfig {
     /// Channels per frame the network reads.
     pub fn channels(&self) -> usize {
         INPUT_CHANNELS + usize::from(self.noise) + 3 * usize::from(self.guide)
+    }
+
+    /// The channels that depend on the window rather than on the frame alone, as `(first,
+    /// count)`: the alignment confidence and, where read, the noise estimate right after it.
+    pub fn window_channels(&self) -> (usize, usize) {
+        (INPUT_CHANNELS - 1, 1 + usize::from(self.noise))
+    }
+
+    /// The channels a frame determines by itself, as ranges in order: everything but
+    /// [`InputConfig::window_channels`].
+    pub fn frame_channels(&self) -> Vec<std::ops::Range<usize>> {
+        let (first, count) = self.window_channels();
+        let mut v = Vec::with_capacity(2);
+        v.push(0..first);
+        if first + count < self.channels() {
+            v.push(first + count..self.channels());
+        }
+        v
     }
 }
 
@@ -254,6 +283,16 @@ impl NetConfig {
             }
             if n > 1 && self.arch != Arch::Ra {
                 return bad("only arch = \"ra\" has multi-scale kernels".into());
+            }
+        }
+        if self.frame_local_stem {
+            let has_ra =
+                matches!(&self.backbone, Backbone::Resnet { ra_after, .. } if !ra_after.is_empty());
+            if self.arch != Arch::Ra || !has_ra {
+                return bad(
+                    "frame_local_stem needs arch = \"ra\" and a resnet backbone with RA blocks"
+                        .into(),
+                );
             }
         }
         if self.guide_blend && !(self.inputs.guide && self.arch == Arch::Ra) {

@@ -159,7 +159,10 @@ impl Denoiser {
             |backbone: &FrameNet| box_head(backbone.out_channels(), k2, box_bias, scale, device);
         let net = match config.arch {
             Arch::Ra => {
-                let backbone = FrameNet::new(&config.backbone, cin, t, true, device);
+                let mut backbone = FrameNet::new(&config.backbone, cin, t, true, device);
+                if config.frame_local_stem {
+                    split_stem(&mut backbone, &config.inputs, device);
+                }
                 let head = kernel_head(&backbone);
                 let scales = config.scales();
                 let coarse_heads = (1..scales).map(|_| kernel_head(&backbone)).collect();
@@ -222,6 +225,26 @@ impl Denoiser {
             n.blend_heads.push(blend_head(c, device));
         }
         self.config.kernel_scales = (scales > 1).then_some(scales);
+        Ok(self)
+    }
+
+    /// The same network with a frame-local stem ([`NetConfig::frame_local_stem`]): the input
+    /// layer's weights of the window's own channels leave it (their value where a frame is fully
+    /// trusted — confidence 1, noise estimate 0 — folded into its bias) and come back after the
+    /// stem through a 1×1 convolution that starts at zero. A fine-tune from a model without the
+    /// split starts close to it. Only an RA network with a ResNet backbone has the split.
+    pub fn with_frame_local_stem(mut self, device: &Device) -> Result<Self, String> {
+        if self.config.frame_local_stem {
+            return Ok(self);
+        }
+        let mut config = self.config.clone();
+        config.frame_local_stem = true;
+        config.validate().map_err(|e| e.to_string())?;
+        let Network::Ra(n) = &mut self.net else {
+            return Err("only arch = \"ra\" has a frame-local stem".into());
+        };
+        split_stem(&mut n.backbone, &self.config.inputs, device);
+        self.config = config;
         Ok(self)
     }
 
@@ -424,6 +447,35 @@ impl Denoiser {
         }
     }
 
+    /// The stem of a frame-local network ([`NetConfig::frame_local_stem`]) for frames `[n, C,
+    /// H, W]` (`C` = [`NetConfig::input_channels`]; the window's own channels are not read):
+    /// `[n, width, H, W]`, what [`Denoiser::predict_with_stem`] takes instead of computing it.
+    pub fn stem(&self, frames: Tensor<4>) -> Tensor<4> {
+        let (Network::Ra(n), true) = (&self.net, self.config.frame_local_stem) else {
+            panic!("only a network with a frame-local stem has a stem of its own");
+        };
+        let resnet = n.backbone.resnet().expect("validated: a ResNet backbone");
+        timed(Stage::Backbone, || {
+            resnet.stem(frame_channels(frames, &self.config.inputs))
+        })
+    }
+
+    /// Channels of a frame-local network's stem features (0 for any other network).
+    pub fn stem_channels(&self) -> usize {
+        match (&self.net, self.config.frame_local_stem) {
+            (Network::Ra(n), true) => n.backbone.resnet().map_or(0, |r| r.width()),
+            _ => 0,
+        }
+    }
+
+    /// The radius in pixels of what one of a frame-local network's stem features reads.
+    pub fn stem_radius(&self) -> usize {
+        match &self.net {
+            Network::Ra(n) => n.backbone.resnet().map_or(0, |r| r.stem_radius()),
+            _ => 0,
+        }
+    }
+
     /// Predicts kernels for windows `[B, T, C, H, W]` (`C` = [`NetConfig::input_channels`],
     /// made by [`crate::infer::input::network_features`]) with threshold `t`.
     pub fn predict(&self, input: Tensor<5>, t: f32) -> Prediction {
@@ -433,7 +485,47 @@ impl Denoiser {
     /// [`Denoiser::predict`], and for a network with the guide blend its weights β per frame
     /// and pixel, `[B, T, 1, H, W]` ([`crate::model::guide_blend::GuideBlend`]).
     pub fn predict_guided(&self, input: Tensor<5>, t: f32) -> (Prediction, Option<Tensor<5>>) {
-        timed(Stage::Heads, || self.predict_untimed(input, t))
+        timed(Stage::Heads, || self.predict_untimed(input, t, None))
+    }
+
+    /// [`Denoiser::predict_guided`] for a frame-local network given every window frame's stem
+    /// features `[B, T, width, H, W]` (computed once per frame with [`Denoiser::stem`] and
+    /// warped onto the centre frame): the input's frame channels are then not read again.
+    pub fn predict_with_stem(
+        &self,
+        input: Tensor<5>,
+        stem: Tensor<5>,
+        t: f32,
+    ) -> (Prediction, Option<Tensor<5>>) {
+        timed(Stage::Heads, || self.predict_untimed(input, t, Some(stem)))
+    }
+
+    /// The RA network's head features of the frames `x` (`[B·T, C, H, W]`, padded to `(ph,
+    /// pw)`): the backbone's, or for a frame-local network the stem's (given, or computed on
+    /// the unpadded frames) padded and then the rest of the backbone.
+    fn backbone_features(
+        &self,
+        n: &RaNet,
+        x: Tensor<4>,
+        stem: Option<Tensor<5>>,
+        (ph, pw): (usize, usize),
+    ) -> Tensor<4> {
+        if !self.config.frame_local_stem {
+            return n.backbone.forward(pad_to(x, ph, pw));
+        }
+        let resnet = n.backbone.resnet().expect("validated: a ResNet backbone");
+        let [bt, _, h, w] = x.dims();
+        let (first, count) = self.config.inputs.window_channels();
+        let window = pad_to(x.clone().narrow(1, first, count), ph, pw);
+        let stem = match stem {
+            Some(s) => s.reshape([bt, resnet.width(), h, w]),
+            None => timed(Stage::Backbone, || {
+                resnet.stem(frame_channels(x, &self.config.inputs))
+            }),
+        };
+        timed(Stage::Backbone, || {
+            resnet.after_stem(pad_to(stem, ph, pw), Some(window))
+        })
     }
 
     /// β of the guide blend from per-frame features `[B·T, C, H', W']` (cropped to `h × w`).
@@ -451,7 +543,12 @@ impl Denoiser {
         Some(beta.reshape([b, bt / b, 1, h, w]))
     }
 
-    fn predict_untimed(&self, input: Tensor<5>, t: f32) -> (Prediction, Option<Tensor<5>>) {
+    fn predict_untimed(
+        &self,
+        input: Tensor<5>,
+        t: f32,
+        stem: Option<Tensor<5>>,
+    ) -> (Prediction, Option<Tensor<5>>) {
         let [b, frames, c, h, w] = input.dims();
         assert_eq!(
             frames, self.config.frames,
@@ -470,7 +567,8 @@ impl Denoiser {
         let centre = frames / 2;
         match &self.net {
             Network::Ra(n) if self.config.scales() == 1 => {
-                let feats = n.backbone.forward(input.reshape([b * frames, c, h, w]));
+                let x = input.reshape([b * frames, c, h, w]);
+                let feats = self.backbone_features(n, x, stem, (h, w));
                 let beta = Self::guide_weights(n, &feats, b, h, w);
                 let raw = conv2d(&n.head, feats, false).reshape([b, frames * k2, h, w]);
                 let weights = eta(raw, t, act, centre * k2 + k2 / 2);
@@ -485,9 +583,9 @@ impl Denoiser {
             }
             Network::Ra(n) => {
                 let scales = self.config.scales();
-                let (ph, pw) = padded_size(h, w, scales);
-                let x = pad_to(input.reshape([b * frames, c, h, w]), ph, pw);
-                let mut feats = n.backbone.forward(x);
+                let padded = padded_size(h, w, scales);
+                let x = input.reshape([b * frames, c, h, w]);
+                let mut feats = self.backbone_features(n, x, stem, padded);
                 let beta = Self::guide_weights(n, &feats, b, h, w);
                 let mut kernels = Vec::with_capacity(scales);
                 let mut blend = Vec::with_capacity(scales - 1);
@@ -563,6 +661,34 @@ impl Denoiser {
             }
         }
     }
+}
+
+/// Splits a ResNet's stem into its frame-local part and the window's own inputs
+/// ([`crate::model::backbone::ResNet::split_window_inputs`]), their at-rest values being a
+/// trusted frame's: confidence 1, noise estimate 0.
+fn split_stem(backbone: &mut FrameNet, inputs: &InputConfig, device: &Device) {
+    let resnet = backbone
+        .resnet_mut()
+        .expect("validated: a frame-local stem has a ResNet backbone");
+    let (first, count) = inputs.window_channels();
+    let mut at_rest = vec![0.0; count];
+    at_rest[0] = 1.0; // confidence
+    resnet.split_window_inputs(
+        &inputs.frame_channels(),
+        first..first + count,
+        &at_rest,
+        device,
+    );
+}
+
+/// The frame-local channels ([`InputConfig::frame_channels`]) of frames `[n, C, H, W]`.
+fn frame_channels(x: Tensor<4>, inputs: &InputConfig) -> Tensor<4> {
+    let parts: Vec<Tensor<4>> = inputs
+        .frame_channels()
+        .into_iter()
+        .map(|r| x.clone().narrow(1, r.start, r.len()))
+        .collect();
+    Tensor::cat(parts, 1)
 }
 
 impl Prediction {

@@ -328,9 +328,27 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
             ),
         });
     }
+    let load_err = |detail: String| NnError::Load {
+        path: path.to_path_buf(),
+        detail,
+    };
+    if d.config.frame_local_stem && !config.frame_local_stem {
+        return Err(load_err(
+            "it has a frame-local stem and the configured network has not".into(),
+        ));
+    }
     if d.config.inputs != config.inputs {
+        if d.config.frame_local_stem {
+            return Err(load_err(
+                "the inputs of a network with a frame-local stem cannot change".into(),
+            ));
+        }
         // a fine-tune may add input features: their first-layer weights start at zero
         d = d.with_inputs(config.inputs.clone(), device);
+    }
+    if config.frame_local_stem && !d.config.frame_local_stem {
+        // a fine-tune may split the stem: it starts close to the model it splits
+        d = d.with_frame_local_stem(device).map_err(load_err)?;
     }
     if d.config.guide_blend != config.guide_blend {
         // a fine-tune may add the guide blend: its head starts near β = 0
