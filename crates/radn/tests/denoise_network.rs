@@ -316,3 +316,68 @@ fn the_automatic_input_blend_follows_each_frames_noise_level() {
         assert_eq!(off != auto, blended, "{level}: blended by auto");
     }
 }
+
+#[test]
+fn a_frame_local_stem_model_runs_tiled_as_whole_with_aovs_summing_to_the_beauty() {
+    // the shipped default with its stem split (issue 20, point 1): the job computes each
+    // frame's stem once and warps its features into the five windows the frame belongs to
+    let d = tempfile::tempdir().unwrap();
+    let device = Device::flex();
+    let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.safetensors");
+    let fw = radn_nn::model::store::load(&shipped, &device)
+        .unwrap()
+        .with_frame_local_stem(&device)
+        .unwrap();
+    let m = d.path().join("fw.safetensors");
+    radn_nn::model::store::save(&fw, &m).unwrap();
+    let input = with_aovs(d.path(), 0.25);
+    let run = |name: &str, extra: &[&str]| {
+        let out = format!("{}/{name}/f_####.exr", d.path().display());
+        let mut args = vec![
+            "denoise",
+            "--model",
+            m.to_str().unwrap(),
+            "-i",
+            &input,
+            "-o",
+            &out,
+            "--frames",
+            "3-7",
+            "--aovs",
+            "diffuse,specular",
+        ];
+        args.extend_from_slice(extra);
+        radn_ok(&args);
+        [3, 5, 7].map(|f| ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap())
+    };
+    let whole = run("whole", &["--tile", "0"]);
+    let tiled = run("tiled", &["--tile", "48"]);
+    let aligned = run("aligned", &["--tile", "0", "--stem-on-aligned-frames"]);
+    let (mut worst, mut apart) = (0.0f32, 0.0f32);
+    for ((a, b), c) in whole.iter().zip(&tiled).zip(&aligned) {
+        for layer in ["Combined", "diffuse", "specular"] {
+            for ch in ["R", "G", "B", "A"] {
+                let name = format!("ViewLayer.{layer}.{ch}");
+                let (Some(x), Some(y), Some(z)) = (
+                    a.channel_f32(&name),
+                    b.channel_f32(&name),
+                    c.channel_f32(&name),
+                ) else {
+                    continue;
+                };
+                for ((u, v), w) in x.iter().zip(&y).zip(&z) {
+                    worst = worst.max((u - v).abs() / u.abs().max(1.0));
+                    apart = apart.max((u - w).abs());
+                }
+            }
+        }
+    }
+    assert!(worst <= 1e-5, "tiled and whole differ by {worst}");
+    // the stem on the aligned frames is another computation (features warped, not inputs)
+    assert!(
+        apart > 1e-3,
+        "warped features gave the aligned frames' result ({apart})"
+    );
+    let src = ExrFile::read(d.path().join("in/frame_0005.exr")).unwrap();
+    assert_aovs_sum_to_beauty(&whole[1], &src);
+}

@@ -49,6 +49,11 @@ pub struct NetworkDenoiser {
     /// computed from the beauty and applied to every signal (still one linear operator per
     /// signal; alpha stays in range). `None`: the kernels' result as it is.
     pub refine: Option<InputBlend>,
+    /// For a network with a frame-local stem: run the stem once per frame as rendered and warp
+    /// its features into each window (true, the default), or run it in every window on the
+    /// aligned frames as training does (false: five times the stem's work, for measuring what
+    /// warping features instead of inputs changes). Ignored by other networks.
+    pub warp_stem_features: bool,
 }
 
 /// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
@@ -96,6 +101,7 @@ impl NetworkDenoiser {
             device,
             align: AlignParams::default(),
             refine: None,
+            warp_stem_features: true,
         }
     }
 
@@ -487,7 +493,7 @@ impl NetworkDenoiser {
     /// Whether the network's per-frame layers run once per frame as rendered and their
     /// features are warped into each window ([`crate::model::config::NetConfig::frame_local_stem`]).
     pub fn reuses_frame_layers(&self) -> bool {
-        self.denoiser.config.frame_local_stem
+        self.denoiser.config.frame_local_stem && self.warp_stem_features
     }
 
     /// A guided network needs every frame's guide: an error naming the first frame without

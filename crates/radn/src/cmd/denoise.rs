@@ -98,6 +98,11 @@ pub struct Args {
     /// docs/benchmarks.md); larger batches hold that many tiles' activations at once.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
     pub batch: u32,
+    /// Network with a frame-local stem: run the stem in every window on the aligned frames, as
+    /// training does, instead of once per frame with its features warped into the windows
+    /// (slower; measures what warping features instead of inputs changes).
+    #[arg(long)]
+    pub stem_on_aligned_frames: bool,
     /// Network: run the network again on its own output this many times in all (widens the
     /// temporal reach, paper section 3).
     #[arg(long, default_value_t = 1)]
@@ -263,6 +268,7 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         n.tile = tile;
     }
     n.batch = a.batch as usize;
+    n.warp_stem_features = !a.stem_on_aligned_frames;
     n.refine = a.input_blend.0.map(|strength| InputBlend {
         radius: a.input_blend_radius,
         strength,
