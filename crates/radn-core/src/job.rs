@@ -192,6 +192,7 @@ impl SequenceJob {
             let started = Instant::now();
             windows.load(pos, reach)?;
             let decoding = started.elapsed();
+            let preparing = Instant::now();
             if prepares {
                 prepared.retain(|&k, _| k + r >= pos);
                 for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
@@ -204,6 +205,7 @@ impl SequenceJob {
                     }
                 }
             }
+            let preparing = preparing.elapsed();
             let denoising = Instant::now();
             let out = if prepares {
                 let window: Vec<Option<&Frame>> = window_indices(pos, n, r)
@@ -222,10 +224,11 @@ impl SequenceJob {
             drop(claim);
             tracing::debug!(
                 "{}: {:.1} s, of which decoding the frames new to this window {:.1} s, \
-                 denoising {:.1} s, writing {:.1} s",
+                 preparing them {:.1} s, denoising {:.1} s, writing {:.1} s",
                 output.display(),
                 started.elapsed().as_secs_f64(),
                 decoding.as_secs_f64(),
+                preparing.as_secs_f64(),
                 denoising.as_secs_f64(),
                 writing.elapsed().as_secs_f64()
             );
