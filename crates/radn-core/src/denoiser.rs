@@ -36,6 +36,17 @@ pub trait WindowDenoiser: Sync {
     fn prepare_needs_neighbours(&self) -> bool {
         false
     }
+    /// Per-frame features computed from the frame alone, once, when it first enters a window:
+    /// the sequence job stores them in [`Frame::features`] of the decoded frame itself (no
+    /// copy of the frame), and every window the frame belongs to reads them there. `None`: the
+    /// method has none (the default).
+    fn frame_features(&self, _frame: &Frame) -> Option<Plane> {
+        None
+    }
+    /// Whether [`WindowDenoiser::frame_features`] computes anything, so the job asks for it.
+    fn has_frame_features(&self) -> bool {
+        false
+    }
     /// Denoises `window[radius]`; `None` marks frames beyond the sequence ends.
     fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised>;
     /// The method's band-by-band form, when it has one: the job then reads and denoises each

@@ -193,6 +193,14 @@ impl SequenceJob {
             windows.load(pos, reach)?;
             let decoding = started.elapsed();
             let preparing = Instant::now();
+            if method.has_frame_features() {
+                for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
+                    if windows.frame(k).features.is_none() {
+                        let features = method.frame_features(windows.frame(k));
+                        windows.frame_mut(k).features = features;
+                    }
+                }
+            }
             if prepares {
                 prepared.retain(|&k, _| k + r >= pos);
                 for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {

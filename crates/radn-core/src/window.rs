@@ -105,6 +105,15 @@ impl<'a> WindowReader<'a> {
             .unwrap_or_else(|| panic!("frame {pos} is read before it is used"))
     }
 
+    /// The decoded frame at `pos`, which must be loaded, to attach what a method computes from
+    /// it once ([`crate::denoiser::WindowDenoiser::frame_features`]).
+    pub fn frame_mut(&mut self, pos: usize) -> &mut Frame {
+        self.frames
+            .get_mut(&pos)
+            .map(|(f, _)| f)
+            .unwrap_or_else(|| panic!("frame {pos} is read before it is used"))
+    }
+
     /// Hands over the decoded file of the frame at `pos` (once; with
     /// [`WindowReader::keeping_files`]).
     pub fn take_file(&mut self, pos: usize) -> Option<ExrFile> {

@@ -6,6 +6,7 @@
 
 pub mod input;
 pub mod input_blend;
+pub mod stems;
 pub mod utilization;
 
 use burn::tensor::{Device, Tensor, TensorData};
@@ -18,11 +19,11 @@ use radn_core::classic::wiener::{
 };
 use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
-use radn_core::warp::{mix_with_centre, warp_plane};
 use radn_core::Plane;
 
 use crate::infer::input::{network_input, FeatureScales, Region};
 use crate::infer::input_blend::InputBlend;
+use crate::infer::stems::WindowStems;
 use crate::model::demod::{filter, Demodulation};
 use crate::model::guide_blend::GuideBlend;
 use crate::model::Denoiser;
@@ -113,9 +114,12 @@ impl NetworkDenoiser {
     }
 
     /// [`NetworkDenoiser::denoise_aligned`] with every window frame's stem features warped onto
-    /// the centre frame (`stems`, one plane per frame; [`NetworkDenoiser::warped_stems`]) for a
-    /// network with a frame-local stem.
-    pub fn denoise_aligned_with(&self, win: &AlignedWindow, stems: Option<&[Plane]>) -> Denoised {
+    /// the centre frame (`stems`) for a network with a frame-local stem.
+    pub fn denoise_aligned_with(
+        &self,
+        win: &AlignedWindow,
+        stems: Option<&WindowStems>,
+    ) -> Denoised {
         let h = win.centre().color.height();
         self.denoise_rows(win, stems, FeatureScales::of(win), 0..h)
     }
@@ -175,49 +179,13 @@ impl NetworkDenoiser {
         out
     }
 
-    /// Every frame's stem features warped onto the centre frame of the aligned window `win`
-    /// of `window` and mixed with the centre frame's by confidence, as alignment does with the
-    /// inputs: a frame's own features ([`Frame::features`], computed once when it entered its
-    /// first window) where it has them, computed here where it has not. Frames beyond the
-    /// sequence ends have confidence 0 and so take the centre frame's features.
-    pub fn warped_stems<'f>(
-        &self,
-        window: &[Option<&'f Frame>],
-        win: &AlignedWindow,
-    ) -> Vec<Plane> {
-        let own = |f: &'f Frame| -> std::borrow::Cow<'f, Plane> {
-            match &f.features {
-                Some(p) => std::borrow::Cow::Borrowed(p),
-                None => std::borrow::Cow::Owned(self.frame_stem(f)),
-            }
-        };
-        let r = window.len() / 2;
-        let centre = own(window[r].expect("the centre frame of a window exists"));
-        timed(Stage::Align, || {
-            win.frames
-                .iter()
-                .zip(window)
-                .enumerate()
-                .map(|(k, (aligned, frame))| match frame {
-                    _ if k == r => centre.clone().into_owned(),
-                    Some(f) if aligned.confidence.data().iter().any(|&c| c > 0.0) => {
-                        let mut warped = warp_plane(&own(f), &aligned.flow);
-                        mix_with_centre(&mut warped, &centre, &aligned.confidence);
-                        warped
-                    }
-                    _ => centre.clone().into_owned(),
-                })
-                .collect()
-        })
-    }
-
     /// Denoises rows `rows` of an aligned window (a band of a frame whose whole-frame
     /// feature scales are `scales`); rows beyond the window's own are never read, so a band must carry the
     /// receptive field's rows around `rows` unless they are the frame's edge.
     pub fn denoise_rows(
         &self,
         win: &AlignedWindow,
-        stems: Option<&[Plane]>,
+        stems: Option<&WindowStems>,
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
@@ -265,7 +233,7 @@ impl NetworkDenoiser {
     fn filtered_rows(
         &self,
         win: &AlignedWindow,
-        stems: Option<&[Plane]>,
+        stems: Option<&WindowStems>,
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Plane {
@@ -339,7 +307,7 @@ impl NetworkDenoiser {
     fn run_tiled(
         &self,
         win: &AlignedWindow,
-        stems: Option<&[Plane]>,
+        stems: Option<&WindowStems>,
         scales: FeatureScales,
         rows: Range<usize>,
         values: impl Fn(Region) -> Vec<f32>,
@@ -400,7 +368,7 @@ impl NetworkDenoiser {
     fn run_group(
         &self,
         win: &AlignedWindow,
-        stems: Option<&[Plane]>,
+        stems: Option<&WindowStems>,
         scales: FeatureScales,
         group: &[Tile],
         values: &impl Fn(Region) -> Vec<f32>,
@@ -418,8 +386,18 @@ impl NetworkDenoiser {
             let mut vals = Vec::new();
             let mut stem = Vec::new();
             for tile in group {
-                for plane in stems.into_iter().flatten() {
-                    tile.region.crop(plane, &mut stem);
+                if let Some(stems) = stems {
+                    // the region's rows of every frame's warped features
+                    let r = tile.region;
+                    let band = timed(Stage::Align, || stems.rows(r.y0..r.y1));
+                    let local = Region {
+                        y0: 0,
+                        y1: r.y1 - r.y0,
+                        ..r
+                    };
+                    for plane in band.iter() {
+                        local.crop(plane, &mut stem);
+                    }
                 }
                 feats.extend(network_input(
                     win,
@@ -519,13 +497,11 @@ impl WindowDenoiser for NetworkDenoiser {
         self.denoiser.config.frames / 2
     }
 
-    fn prepare(&self, frame: &mut Frame, _prev: Option<&Frame>, _next: Option<&Frame>) {
-        if self.reuses_frame_layers() {
-            frame.features = Some(self.frame_stem(frame));
-        }
+    fn frame_features(&self, frame: &Frame) -> Option<Plane> {
+        self.reuses_frame_layers().then(|| self.frame_stem(frame))
     }
 
-    fn prepares_frames(&self) -> bool {
+    fn has_frame_features(&self) -> bool {
         self.reuses_frame_layers()
     }
 
@@ -534,8 +510,8 @@ impl WindowDenoiser for NetworkDenoiser {
         let win = timed(Stage::Align, || align_window(window, &self.align));
         let stems = self
             .reuses_frame_layers()
-            .then(|| self.warped_stems(window, &win));
-        let out = self.denoise_aligned_with(&win, stems.as_deref());
+            .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
+        let out = self.denoise_aligned_with(&win, stems.as_ref());
         log_stages(
             window
                 .get(window.len() / 2)
@@ -726,14 +702,14 @@ mod tests {
         let halo = d.receptive_radius().unwrap();
         let frames = moving_frames(2 * halo + 70, 44, 7);
         let mut n = NetworkDenoiser::new(d, device);
-        assert!(n.prepares_frames() && n.banded().is_none());
+        assert!(n.has_frame_features() && n.banded().is_none());
         // each frame's stem once, in tiles of 16 px (its halo is 7 px)
         n.tile = 16;
         let prepared: Vec<Frame> = frames
             .iter()
             .map(|f| {
                 let mut p = f.clone();
-                n.prepare(&mut p, None, None);
+                p.features = n.frame_features(f);
                 p
             })
             .collect();
