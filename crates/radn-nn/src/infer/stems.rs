@@ -29,8 +29,11 @@ pub struct WindowStems<'a> {
     sides: Vec<Option<Side<'a>>>,
     centre: Cow<'a, Plane>,
     /// The last band asked for, kept while a row of tiles reads it.
-    last: Mutex<Option<(Range<usize>, Arc<Vec<Plane>>)>>,
+    last: Mutex<Option<WarpedBand>>,
 }
+
+/// A band of rows and every window frame's warped features over it.
+type WarpedBand = (Range<usize>, Arc<Vec<Plane>>);
 
 impl<'a> WindowStems<'a> {
     /// The stems of `window` (its frames; `None` beyond the sequence ends) aligned as `win`:
