@@ -285,13 +285,30 @@ impl NetworkDenoiser {
 
 impl NetworkDenoiser {
     /// Per-pixel kernel weight of each window frame (temporal utilisation, paper Table 1 and
-    /// Fig. 6): `frames` planes summing to 1 at every pixel.
+    /// Fig. 6): `frames` planes summing to 1 at every pixel. A network with a frame-local stem
+    /// runs it on the aligned frames here, as in training; [`NetworkDenoiser::window_utilization`]
+    /// measures what `denoise` computes.
     pub fn utilization(&self, win: &AlignedWindow) -> Vec<Plane> {
+        self.utilization_with(win, None)
+    }
+
+    /// [`NetworkDenoiser::utilization`] of the window of frames `window` (`None` beyond the
+    /// sequence ends), aligned here, with the stem features warped as
+    /// [`WindowDenoiser::denoise`] warps them.
+    pub fn window_utilization(&self, window: &[Option<&Frame>]) -> Vec<Plane> {
+        let win = align_window(window, &self.align);
+        let stems = self
+            .reuses_frame_layers()
+            .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
+        self.utilization_with(&win, stems.as_ref())
+    }
+
+    fn utilization_with(&self, win: &AlignedWindow, stems: Option<&WindowStems>) -> Vec<Plane> {
         let t = win.frames.len();
         let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
         let h = win.centre().color.height();
         let scales = FeatureScales::of(win);
-        let mass = self.run_tiled(win, None, scales, 0..h, zeros, 1, |p, _, _, _| {
+        let mass = self.run_tiled(win, stems, scales, 0..h, zeros, 1, |p, _, _, _| {
             p.frame_mass(t)
         });
         (0..t).map(|k| mass.select_channels(k, 1)).collect()

@@ -181,7 +181,7 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
     let paths: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
     let mut windows = WindowReader::new(&reader, &paths, net.radius())
         .with_guides(GuideArgs::window_guides(oidn, &paths));
-    Ok(net.utilization(&windows.aligned(pos, &net.align)?))
+    Ok(net.window_utilization(&windows.read(pos)?))
 }
 
 /// `--utilization`: how much each frame of the window contributes to the network's kernels
@@ -200,7 +200,7 @@ fn utilization(a: &Args) -> Result<()> {
     let mut stats = Utilization::new(2 * net.radius() + 1);
     let pb = crate::progress::frames(files.len() as u64, "utilisation");
     for (pos, (number, _)) in files.iter().enumerate() {
-        let mass = net.utilization(&windows.aligned(pos, &net.align)?);
+        let mass = net.window_utilization(&windows.read(pos)?);
         if let Some(dir) = &a.heatmaps {
             write_heatmap(
                 &mass[net.radius()],
