@@ -332,7 +332,7 @@ impl NetworkDenoiser {
         f: impl Fn(&crate::model::Prediction, Option<Tensor<5>>, Tensor<5>, &Tensor<5>) -> Tensor<4>,
     ) -> Plane {
         let w = win.centre().color.width();
-        let tiles = self.tiles(win, rows.clone());
+        let tiles = self.tiles(win, rows.clone(), stems.is_some());
         let mut out: Option<Plane> = None;
         for call in batches(&tiles, self.batch) {
             let group = &tiles[call];
@@ -344,11 +344,18 @@ impl NetworkDenoiser {
     }
 
     /// The tiles covering rows `rows` of the window, row of tiles by row of tiles, each with its
-    /// output rectangle and the region (output plus halo, clamped to the window) it reads.
-    fn tiles(&self, win: &AlignedWindow, rows: Range<usize>) -> Vec<Tile> {
+    /// output rectangle and the region (output plus halo, clamped to the window) it reads; with
+    /// `stem_given` (a frame-local stem's features computed on whole frames) the halo leaves out
+    /// the stem's reach.
+    fn tiles(&self, win: &AlignedWindow, rows: Range<usize>, stem_given: bool) -> Vec<Tile> {
         let c = win.centre();
         let (w, h) = (c.color.width(), c.color.height());
-        let halo = self.denoiser.receptive_radius();
+        // with a frame-local stem's features given, the stem's reach is already computed
+        let halo = if stem_given {
+            self.denoiser.receptive_radius_after_stem()
+        } else {
+            self.denoiser.receptive_radius()
+        };
         let (tw, th) = match (halo, self.tile) {
             (Some(_), tile) if tile > 0 => {
                 // multi-scale kernels: tiles on the coarsest scale's grid
@@ -896,7 +903,7 @@ mod tests {
         n.tile = 16;
         // 70×52 with a 46-pixel halo: in each row of tiles, the tiles at x = 16 and 32 read
         // the full width; the others read less
-        let tiles = n.tiles(&window(70, 52), 0..52);
+        let tiles = n.tiles(&window(70, 52), 0..52, false);
         assert_eq!(tiles.len(), 5 * 4);
         for batch in [1, 2, 3, 8] {
             let calls = batches(&tiles, batch);
@@ -937,7 +944,7 @@ mod tests {
         for tile in [32usize, 30] {
             n.tile = tile;
             assert!(n
-                .tiles(&win, 0..h)
+                .tiles(&win, 0..h, false)
                 .iter()
                 .any(|t| t.region.size() != (w, h)));
             let worst = worst_difference(&whole, &n.denoise_aligned(&win));

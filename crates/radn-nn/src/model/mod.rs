@@ -362,6 +362,19 @@ impl Denoiser {
     /// block adds 2 per recurrent step, kernel application adds k/2 (twice for tKPCN). `None`
     /// for a UNet, whose pooling grid makes tiles depend on their position.
     pub fn receptive_radius(&self) -> Option<usize> {
+        self.reach_beyond(0)
+    }
+
+    /// [`Denoiser::receptive_radius`] once the stem's features are given
+    /// ([`Denoiser::predict_with_stem`], computed on whole frames): the stem's own reach is then
+    /// not needed around a tile.
+    pub fn receptive_radius_after_stem(&self) -> Option<usize> {
+        self.reach_beyond(self.stem_radius())
+    }
+
+    /// The receptive radius less `given` pixels of the backbone's reach that are already
+    /// computed.
+    fn reach_beyond(&self, given: usize) -> Option<usize> {
         let k = self.config.kernel_size / 2;
         if self.config.scales() > 1 {
             // a coarse kernel at scale s reaches k coarse pixels, its head one more, the box
@@ -375,7 +388,7 @@ impl Denoiser {
                 return None; // a UNet's own pooling grid
             };
             let m = self.tile_grid();
-            let backbone = 1 + 2 * blocks + ra_after.len() * 2 * self.config.frames;
+            let backbone = 1 + 2 * blocks + ra_after.len() * 2 * self.config.frames - given;
             return Some((backbone + 1 + k + m * (k + 3)).div_ceil(m) * m);
         }
         match &self.config.backbone {
@@ -387,7 +400,7 @@ impl Denoiser {
                 } else {
                     0
                 };
-                let backbone = 1 + 2 * blocks + ra;
+                let backbone = 1 + 2 * blocks + ra - given;
                 Some(match self.config.arch {
                     Arch::Ra | Arch::Spatial => backbone + 1 + k,
                     Arch::Tkpcn => backbone + 3 + k + k,
