@@ -371,4 +371,36 @@ mod tests {
             .to_string()
             .contains("skips_from"));
     }
+
+    #[test]
+    fn a_frame_local_stem_needs_a_resnet_with_ra_blocks_and_names_the_window_channels() {
+        let mut c = NetConfig::preset("small").unwrap();
+        c.frame_local_stem = true;
+        assert!(c.validate().is_ok());
+        // the split's channels: confidence and the noise estimate, then the guide again
+        c.inputs = InputConfig {
+            exposure: true,
+            noise: true,
+            guide: true,
+        };
+        assert_eq!(c.inputs.window_channels(), (INPUT_CHANNELS - 1, 2));
+        assert_eq!(
+            c.inputs.frame_channels(),
+            vec![
+                0..INPUT_CHANNELS - 1,
+                INPUT_CHANNELS + 1..INPUT_CHANNELS + 4
+            ]
+        );
+        for other in ["unet", "tkpcn", "spatial"] {
+            let mut c = NetConfig::preset(other).unwrap();
+            c.frame_local_stem = true;
+            assert!(
+                c.validate()
+                    .unwrap_err()
+                    .to_string()
+                    .contains("frame_local_stem"),
+                "{other}"
+            );
+        }
+    }
 }
