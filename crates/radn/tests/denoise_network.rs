@@ -235,49 +235,22 @@ fn banded_denoising_equals_whole_frame_denoising() {
     let input = tall(d.path());
     let run = |tile: &str| {
         let out = format!("{}/t{tile}/f_####.exr", d.path().display());
-        radn_ok(&[
-            "denoise",
-            "--method",
-            "network",
-            "--model",
-            m.to_str().unwrap(),
-            "-i",
-            &input,
-            "-o",
-            &out,
-            "--frames",
-            "3-7",
-            "--aovs",
-            "diffuse,specular",
-            "--tile",
-            tile,
-            "--input-blend",
-            "2",
-        ]);
-        // frames 3 and 7 have windows clamped at the sequence's ends
-        [3, 5, 7].map(|f| ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap())
+        let args = ["--method", "network", "--tile", tile, "--input-blend", "2"];
+        denoise_frames_3_to_7(&m, &input, &out, &args)
     };
     let whole = run("0");
     let banded = run("64");
     let mut compared = 0;
-    for (a, b) in whole.iter().zip(&banded) {
-        for layer in ["Combined", "diffuse", "specular"] {
-            for c in ["R", "G", "B", "A"] {
-                let name = format!("ViewLayer.{layer}.{c}");
-                let (Some(x), Some(y)) = (a.channel_f32(&name), b.channel_f32(&name)) else {
-                    continue;
-                };
-                for (i, (u, v)) in x.iter().zip(&y).enumerate() {
-                    assert!(
-                        (u - v).abs() <= 1e-5 * u.abs().max(1.0),
-                        "{name} pixel {i} (row {}): whole frame {u}, banded {v}",
-                        i / 176
-                    );
-                }
-                compared += x.len();
-            }
+    for_each_channel(&whole, &banded, |name, x, y| {
+        for (i, (u, v)) in x.iter().zip(y).enumerate() {
+            assert!(
+                (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                "{name} pixel {i} (row {}): whole frame {u}, banded {v}",
+                i / 176
+            );
         }
-    }
+        compared += x.len();
+    });
     assert!(compared >= 3 * 10 * 176 * 300, "{compared}");
 }
 
@@ -333,45 +306,22 @@ fn a_frame_local_stem_model_runs_tiled_as_whole_with_aovs_summing_to_the_beauty(
     let input = with_aovs(d.path(), 0.25);
     let run = |name: &str, extra: &[&str]| {
         let out = format!("{}/{name}/f_####.exr", d.path().display());
-        let mut args = vec![
-            "denoise",
-            "--model",
-            m.to_str().unwrap(),
-            "-i",
-            &input,
-            "-o",
-            &out,
-            "--frames",
-            "3-7",
-            "--aovs",
-            "diffuse,specular",
-        ];
-        args.extend_from_slice(extra);
-        radn_ok(&args);
-        [3, 5, 7].map(|f| ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap())
+        denoise_frames_3_to_7(&m, &input, &out, extra)
     };
     let whole = run("whole", &["--tile", "0"]);
     let tiled = run("tiled", &["--tile", "48"]);
     let aligned = run("aligned", &["--tile", "0", "--stem-on-aligned-frames"]);
     let (mut worst, mut apart) = (0.0f32, 0.0f32);
-    for ((a, b), c) in whole.iter().zip(&tiled).zip(&aligned) {
-        for layer in ["Combined", "diffuse", "specular"] {
-            for ch in ["R", "G", "B", "A"] {
-                let name = format!("ViewLayer.{layer}.{ch}");
-                let (Some(x), Some(y), Some(z)) = (
-                    a.channel_f32(&name),
-                    b.channel_f32(&name),
-                    c.channel_f32(&name),
-                ) else {
-                    continue;
-                };
-                for ((u, v), w) in x.iter().zip(&y).zip(&z) {
-                    worst = worst.max((u - v).abs() / u.abs().max(1.0));
-                    apart = apart.max((u - w).abs());
-                }
-            }
+    for_each_channel(&whole, &tiled, |_, x, y| {
+        for (u, v) in x.iter().zip(y) {
+            worst = worst.max((u - v).abs() / u.abs().max(1.0));
         }
-    }
+    });
+    for_each_channel(&whole, &aligned, |_, x, z| {
+        for (u, w) in x.iter().zip(z) {
+            apart = apart.max((u - w).abs());
+        }
+    });
     assert!(worst <= 1e-5, "tiled and whole differ by {worst}");
     // the stem on the aligned frames is another computation (features warped, not inputs)
     assert!(
@@ -380,4 +330,41 @@ fn a_frame_local_stem_model_runs_tiled_as_whole_with_aovs_summing_to_the_beauty(
     );
     let src = ExrFile::read(d.path().join("in/frame_0005.exr")).unwrap();
     assert_aovs_sum_to_beauty(&whole[1], &src);
+}
+
+/// `radn denoise` of frames 3–7 of `input` (made by [`with_aovs`]) with model `m` into `out`,
+/// the diffuse and specular AOVs with the beauty's kernels, and `extra` options: the results
+/// of frames 3, 5 and 7 (the first and last with windows clamped at the sequence's ends).
+fn denoise_frames_3_to_7(m: &Path, input: &str, out: &str, extra: &[&str]) -> [ExrFile; 3] {
+    let mut args = vec![
+        "denoise",
+        "--model",
+        m.to_str().unwrap(),
+        "-i",
+        input,
+        "-o",
+        out,
+        "--frames",
+        "3-7",
+        "--aovs",
+        "diffuse,specular",
+    ];
+    args.extend_from_slice(extra);
+    radn_ok(&args);
+    [3, 5, 7].map(|f| ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap())
+}
+
+/// `f(name, a's values, b's values)` for every channel of the beauty, the two AOVs and alpha
+/// that both results of every frame have.
+fn for_each_channel(a: &[ExrFile], b: &[ExrFile], mut f: impl FnMut(&str, &[f32], &[f32])) {
+    for (a, b) in a.iter().zip(b) {
+        for layer in ["Combined", "diffuse", "specular"] {
+            for c in ["R", "G", "B", "A"] {
+                let name = format!("ViewLayer.{layer}.{c}");
+                if let (Some(x), Some(y)) = (a.channel_f32(&name), b.channel_f32(&name)) {
+                    f(&name, &x, &y);
+                }
+            }
+        }
+    }
 }
