@@ -92,7 +92,7 @@ pub struct Frame {
     /// Never read by [`FrameReader`] itself; a sequence job attaches it.
     pub guide: Option<Plane>,
     /// Per-frame features a denoising method computed once for this frame in
-    /// [`crate::denoiser::WindowDenoiser::prepare`] (a network's per-frame layers), so that the
+    /// [`crate::denoiser::WindowDenoiser::frame_features`] (a network's per-frame layers), so that the
     /// windows the frame belongs to reuse them instead of computing them again. Never read from
     /// files.
     pub features: Option<Plane>,

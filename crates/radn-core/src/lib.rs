@@ -11,7 +11,7 @@
 //! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
 //!   ([`classic`]), whole sequences ([`job`]) and runs of several passes ([`passes`]).
 //! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]) and the HTML report
-//!   ([`report`]); throughput of the data path ([`bench`]).
+//!   ([`report`]); throughput of the data path ([`mod@bench`]).
 
 pub mod align;
 pub mod banding;

@@ -2,7 +2,7 @@
 //! three stages: the model ([`model`]: configuration, layers, RA blocks, backbones, kernels,
 //! demodulation, model files), inference ([`infer`]: the tiled network denoiser, its inputs,
 //! temporal utilisation) and training ([`train`]: tile datasets, objective, losses, trainer,
-//! curves). [`device`] says where it runs (CPU or CUDA). [`bench`] measures the network's throughput, [`profile`] where a denoising run's
+//! curves). [`device`] says where it runs (CPU or CUDA). [`mod@bench`] measures the network's throughput, [`profile`] where a denoising run's
 //! time goes.
 
 pub mod bench;
