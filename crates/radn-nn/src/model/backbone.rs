@@ -155,8 +155,18 @@ impl ResNet {
 
     /// `[batch · frames, input channels, H, W]` → head features.
     pub fn forward(&self, x: Tensor<4>) -> Tensor<4> {
-        let stem = self.stem(x);
-        self.after_stem(stem, None)
+        if HostConv::applies(&self.input, &x.device()) {
+            // the maps stay on the host from the input layer to the head features
+            let device = x.device();
+            let [n, _, hh, ww] = x.dims();
+            let input = x.into_data();
+            let input = input.as_slice::<f32>().expect("f32 input");
+            let stem = self.stem_on_host(input, [n, hh, ww]);
+            let out = self.rest_on_host(stem, [n, hh, ww]);
+            let c = self.out_channels();
+            return Tensor::from_data(TensorData::new(out, [n, c, hh, ww]), &device);
+        }
+        self.forward_with_burn(x)
     }
 
     /// The stem: the input layer and the blocks before the first RA block, frame by frame
@@ -183,7 +193,6 @@ impl ResNet {
     }
 
     /// [`ResNet::forward`] as burn operations (training, other backends).
-    #[cfg(test)]
     fn forward_with_burn(&self, x: Tensor<4>) -> Tensor<4> {
         self.after_stem_with_burn(self.stem_with_burn(x), None)
     }
