@@ -10,8 +10,9 @@
 //!   per frame ([`guide`]).
 //! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
 //!   ([`classic`]), whole sequences ([`job`]) and runs of several passes ([`passes`]).
-//! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]) and the HTML report
-//!   ([`report`]); throughput of the data path ([`mod@bench`]).
+//! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]), metrics with the
+//!   reference's own noise taken out ([`reference_noise`]) and the HTML report ([`report`]);
+//!   throughput of the data path ([`mod@bench`]).
 
 pub mod align;
 pub mod banding;
@@ -36,6 +37,7 @@ pub mod output;
 pub mod output_locks;
 pub mod passes;
 pub mod plane;
+pub mod reference_noise;
 pub mod report;
 pub mod sequence;
 pub mod warp;

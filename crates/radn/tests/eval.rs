@@ -75,6 +75,70 @@ fn eval_reports_known_psnr_flicker_and_writes_json_and_csv() {
     );
 }
 
+/// `--second-reference`: two references whose noise is independent (here: orthogonal
+/// patterns) give the error against the noise-free image, which one alone hides.
+#[test]
+fn a_second_reference_takes_the_references_noise_out_of_the_metrics() {
+    let d = tempfile::tempdir().unwrap();
+    let (a, b, result) = (d.path().join("a"), d.path().join("b"), d.path().join("r"));
+    // the truth is 0.5 (tonemapped) everywhere and still; A's noise is ±0.1 in a pattern that
+    // flips every frame, B's is ±0.1 in another pattern (orthogonal to A's), the same in every
+    // frame; the result is off by a constant 0.05
+    let sign = |k: bool| if k { 1.0 } else { -1.0 };
+    write_seq(&a, &[1, 2, 3], |f, i| {
+        untonemap(0.5 + 0.1 * sign(i % 2 == 0) * sign(f % 2 == 0))
+    });
+    write_seq(&b, &[1, 2, 3], |_, i| {
+        untonemap(0.5 + 0.1 * sign(i / 2 % 2 == 0))
+    });
+    write_seq(&result, &[1, 2, 3], |_, _| untonemap(0.55));
+    let json = d.path().join("m.json");
+    let out = radn_ok(&[
+        "eval",
+        "--result",
+        result.to_str().unwrap(),
+        "--reference",
+        a.to_str().unwrap(),
+        "--second-reference",
+        b.to_str().unwrap(),
+        "--json",
+        json.to_str().unwrap(),
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(stdout.contains("PSNR*"), "{stdout}");
+    let v: serde_json::Value = serde_json::from_slice(&std::fs::read(&json).unwrap()).unwrap();
+    let close = |x: &serde_json::Value, want: f64, tol: f64| {
+        let x = x.as_f64().unwrap();
+        assert!((x - want).abs() < tol, "{x} vs {want}");
+    };
+    // against A alone: MSE 0.05² + 0.1² -> 19.03 dB, and A's flicker is charged to the result
+    close(&v["mean"]["psnr"], 19.03, 0.01);
+    close(&v["mean"]["tmae"], 0.2, 1e-3);
+    // without the references' noise: MSE 0.05² -> 26.02 dB, and a still result is exactly still
+    let nf = &v["noise_free"]["mean"];
+    close(&nf["psnr"], 26.02, 0.01);
+    close(&nf["trmse"], 0.0, 1e-4);
+    // how far the two references differ: mean square of ±0.1 ∓ 0.1 is 0.02 (17.0 dB)
+    close(&nf["reference_psnr"], 16.99, 0.01);
+    close(&nf["reference_tmae"], 0.2, 1e-3);
+    assert_eq!(v["second_reference"].as_str(), b.to_str());
+
+    // every evaluated frame must be in the second reference
+    std::fs::remove_file(b.join("img.0002.exr")).unwrap();
+    let out = radn(&[
+        "eval",
+        "--result",
+        result.to_str().unwrap(),
+        "--reference",
+        a.to_str().unwrap(),
+        "--second-reference",
+        b.to_str().unwrap(),
+    ]);
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("has no frame 2"), "{err}");
+}
+
 #[test]
 fn eval_without_common_frames_is_an_error() {
     let d = tempfile::tempdir().unwrap();

@@ -8,11 +8,13 @@ use radn_core::denoiser::WindowDenoiser;
 use radn_core::evaluation::{self, Evaluation};
 use radn_core::frame::Requirements;
 use radn_core::output::write_bytes_atomically;
+use radn_core::reference_noise::{self, NoiseFreeMetrics};
 use radn_core::report::{write_report, Shown};
 use radn_core::sequence::sequence_files;
 use radn_core::window::WindowReader;
 use radn_core::Plane;
 use radn_nn::infer::utilization::{write_heatmap, Utilization};
+use rayon::prelude::*;
 
 use crate::input::{ChannelArgs, GuideArgs};
 
@@ -71,6 +73,12 @@ pub struct Args {
     /// Preset of the reference files when it differs from the result's (default: detect).
     #[arg(long, default_value = "auto")]
     pub reference_preset: String,
+    /// A second reference of the same frames, rendered with other sampling seeds (folder or
+    /// pattern, read like --reference). Adds PSNR, tPSNR and temporal RMSE against the
+    /// noise-free image, estimated from the two references, and how far the two references
+    /// differ (their PSNR and tMAE against each other: the floor one noisy reference sets).
+    #[arg(long, requires_all = ["result", "reference"], conflicts_with_all = ["utilization", "html"])]
+    pub second_reference: Option<String>,
 }
 
 /// Computes and prints the metrics.
@@ -85,16 +93,71 @@ pub fn run(a: Args) -> Result<()> {
         a.result.clone().expect("clap requires it"),
         a.reference.clone().expect("clap requires it"),
     );
-    let rows = evaluate(&a, &result_spec, &reference_spec)?.rows;
-    print!("{}", evaluation::table(&rows));
+    let ev = evaluate(&a, &result_spec, &reference_spec)?;
+    let rows = &ev.rows;
+    print!("{}", evaluation::table(rows));
+    let noise_free = match &a.second_reference {
+        Some(spec) => {
+            let rows = noise_free(&a, &ev, spec)?;
+            println!(
+                "against the noise-free image, estimated from --reference and --second-reference:"
+            );
+            print!("{}", reference_noise::table(&rows));
+            Some(rows)
+        }
+        None => None,
+    };
     if let Some(p) = &a.json {
-        let json = evaluation::to_json(&rows, &result_spec, &reference_spec);
+        let mut json = evaluation::to_json(rows, &result_spec, &reference_spec);
+        if let (Some(rows), Some(spec)) = (&noise_free, &a.second_reference) {
+            let mut v: serde_json::Value = serde_json::from_str(&json)?;
+            v["second_reference"] = spec.as_str().into();
+            v["noise_free"] = reference_noise::to_json_value(rows);
+            json = serde_json::to_string_pretty(&v)?;
+        }
         write_bytes_atomically(p, json.as_bytes())?;
     }
     if let Some(p) = &a.csv {
-        write_bytes_atomically(p, evaluation::to_csv(&rows).as_bytes())?;
+        write_bytes_atomically(p, evaluation::to_csv(rows).as_bytes())?;
     }
     Ok(())
+}
+
+/// `--second-reference`: reads the second reference's frames of the evaluation (every one
+/// must exist) and estimates the metrics against the noise-free image.
+fn noise_free(a: &Args, ev: &Evaluation, spec: &str) -> Result<Vec<NoiseFreeMetrics>> {
+    let files = sequence_files(spec, None)?;
+    let paths = ev
+        .planes
+        .iter()
+        .map(|(f, _, _)| {
+            files
+                .iter()
+                .find(|(g, _)| g == f)
+                .map(|(_, p)| p.clone())
+                .ok_or_else(|| anyhow!("--second-reference '{spec}' has no frame {f}"))
+        })
+        .collect::<Result<Vec<PathBuf>>>()?;
+    let ref_args = ChannelArgs {
+        preset: a.reference_preset.clone(),
+        mapping: None,
+        ..a.channels.clone()
+    };
+    let reader = ref_args.reader(&paths[0], Requirements::COLOR_ONLY)?;
+    let second = paths
+        .par_iter()
+        .map(|p| -> Result<Plane> {
+            let (frame, _) = reader.read(p)?;
+            Ok(frame.color)
+        })
+        .collect::<Result<Vec<Plane>>>()?;
+    let frames: Vec<(i64, &Plane, &Plane, &Plane)> = ev
+        .planes
+        .iter()
+        .zip(&second)
+        .map(|((f, r, g), b)| (*f, r, g, b))
+        .collect();
+    Ok(reference_noise::evaluate(&frames)?)
 }
 
 /// Reads `result_spec` and `reference_spec` (frames matched by number) and computes the
