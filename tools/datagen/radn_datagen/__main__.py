@@ -5,6 +5,7 @@
     python -m radn_datagen dataset --split detail-train --scenes 90 --spp 32,64,128,256 --teacher-spp 1x ...
     python -m radn_datagen oidn IN_DIR OUT_DIR      # OIDN 2.5 on every frame of a folder
     python -m radn_datagen oidn IN_DIR OUT_DIR --mode noisy-aux --timings t.json
+    python -m radn_datagen combine ref:512 spp2048:2048 --out ref3072   # one cleaner reference
 """
 import argparse
 import os
@@ -151,6 +152,11 @@ def main(argv=None):
     t.add_argument("src")
     t.add_argument("dst")
     t.add_argument("--crop", default=None, help="x,y,w,h: keep only this region")
+    c = sub.add_parser("combine", help="combine independent renders of the same frames into one cleaner "
+                                       "reference (the beauty's mean weighted by spp)")
+    c.add_argument("sources", nargs="+", metavar="FOLDER:SPP",
+                   help="a folder of renders and its samples per pixel, e.g. ref:512 spp2048:2048")
+    c.add_argument("--out", required=True, help="the folder to write the combined frames to")
     d = sub.add_parser("dataset", parents=[common], help="render a split of S scenes")
     d.add_argument("--split", choices=sorted(SPLIT_BASE), required=True)
     d.add_argument("--scenes", type=int, required=True)
@@ -160,6 +166,21 @@ def main(argv=None):
         from .trim import trim_scene
         crop = tuple(int(v) for v in a.crop.split(",")) if a.crop else None
         print(f"wrote {trim_scene(a.src, a.dst, crop)}")
+        return 0
+    if a.cmd == "combine":
+        from .combine import CombineError, combine_folders
+
+        sources = []
+        for spec in a.sources:
+            folder, _, spp = spec.rpartition(":")
+            if not folder or not spp.isdigit() or int(spp) <= 0:
+                raise SystemExit(f"'{spec}' must be FOLDER:SPP with SPP a positive whole number")
+            sources.append((folder, int(spp)))
+        try:
+            n = combine_folders(sources, a.out)
+        except CombineError as e:
+            raise SystemExit(str(e))
+        print(f"wrote {n} frames to {a.out}")
         return 0
     if a.cmd == "oidn":
         from .oidn import OidnInputError, denoise_folder

@@ -203,3 +203,27 @@ def test_cycles_denoise_writes_the_noisy_beauty_beside_cycles_denoised_one(tmp_p
     assert abs(noisy.mean() - denoised.mean()) < 0.05 * noisy.mean()
     m = json.load(open(out / "manifest.json"))
     assert "Noisy Image" in m["passes"] and m["cycles_denoising"] != "off"
+
+
+def test_combine_weights_renders_by_samples_and_names_a_missing_frame(tmp_path):
+    a, b = tmp_path / "a", tmp_path / "b"
+    for d, v in ((a, 1.0), (b, 4.0)):
+        d.mkdir()
+        for f in (1, 2):
+            px = np.full((3, 5), v * f, np.float32)
+            chans = {f"ViewLayer.Combined.{c}": px for c in "RGBA"}
+            chans["ViewLayer.Depth.Z"] = px  # not the beauty: left out
+            OpenEXR.File({}, chans).write(str(d / f"frame_{f:04d}.exr"))
+    out = tmp_path / "out"
+    r = subprocess.run([sys.executable, "-m", "radn_datagen", "combine", f"{a}:100", f"{b}:300", "--out", str(out)],
+                       cwd=DATAGEN, capture_output=True, text=True)
+    assert r.returncode == 0, r.stderr
+    ch = channels(out / "frame_0002.exr")
+    # (100 * 2 + 300 * 8) / 400
+    assert np.allclose(rgb(ch), 6.5) and np.allclose(ch["ViewLayer.Combined.A"], 6.5)
+    assert "ViewLayer.Depth.Z" not in ch
+    (b / "frame_0002.exr").unlink()
+    r = subprocess.run([sys.executable, "-m", "radn_datagen", "combine", f"{a}:100", f"{b}:300", "--out",
+                        str(tmp_path / "out2")], cwd=DATAGEN, capture_output=True, text=True)
+    assert r.returncode != 0 and "frame_0002.exr" in r.stderr, r.stderr
+    assert not (tmp_path / "out2").exists()
