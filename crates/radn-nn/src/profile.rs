@@ -27,9 +27,11 @@ pub enum Stage {
     Kernels,
     /// The input blend that follows the frame's noise level.
     InputBlend,
+    /// The guide mix of a guided network.
+    GuideMix,
 }
 
-const STAGES: [Stage; 7] = [
+const STAGES: [Stage; 8] = [
     Stage::Align,
     Stage::Inputs,
     Stage::Backbone,
@@ -37,6 +39,7 @@ const STAGES: [Stage; 7] = [
     Stage::Heads,
     Stage::Kernels,
     Stage::InputBlend,
+    Stage::GuideMix,
 ];
 
 impl Stage {
@@ -56,13 +59,14 @@ impl Stage {
             Stage::Heads => "heads",
             Stage::Kernels => "kernel application",
             Stage::InputBlend => "input blend",
+            Stage::GuideMix => "guide mix",
         }
     }
 }
 
 /// Time spent per stage.
 #[derive(Clone, Copy, Debug, Default, PartialEq)]
-pub struct StageTimes([Duration; 7]);
+pub struct StageTimes([Duration; 8]);
 
 impl StageTimes {
     /// The time of `stage`.

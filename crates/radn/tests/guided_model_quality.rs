@@ -89,12 +89,12 @@ fn the_guided_models_beat_oidn_at_4_spp_and_the_default_at_every_level_on_the_sa
         env!("CARGO_MANIFEST_DIR")
     );
     let models: [(&str, Vec<&str>, _); 2] = [
+        ("guided", vec!["--guide", "oidn", "--model", &large], GATES),
         (
-            "guided",
-            vec!["--guide", "oidn", "--model", &large],
-            GATES,
+            "compiled-in guided-lean",
+            vec!["--guide", "oidn"],
+            LEAN_GATES,
         ),
-        ("compiled-in guided-lean", vec!["--guide", "oidn"], LEAN_GATES),
     ];
     let d = tempfile::tempdir().unwrap();
     for (i, (level, ..)) in GATES.iter().enumerate() {

@@ -4,6 +4,7 @@
 //! The network's inputs are built in [`input`]; temporal utilisation (paper Table 1) is
 //! measured in [`utilization`].
 
+pub mod guide_mix;
 pub mod input;
 pub mod input_blend;
 pub mod stems;
@@ -55,6 +56,10 @@ pub struct NetworkDenoiser {
     /// aligned frames as training does (false: five times the stem's work, for measuring what
     /// warping features instead of inputs changes). Ignored by other networks.
     pub warp_stem_features: bool,
+    /// For a guided network, the guide mix ([`guide_mix`]): the weight in [0, 1] of the
+    /// centre frame's own guide in the result, after the input blend (0: the network's result
+    /// as it is). Ignored by networks without a guide.
+    pub guide_mix: f32,
 }
 
 /// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
@@ -103,6 +108,7 @@ impl NetworkDenoiser {
             align: AlignParams::default(),
             refine: None,
             warp_stem_features: true,
+            guide_mix: 0.0,
         }
     }
 
@@ -190,7 +196,7 @@ impl NetworkDenoiser {
         rows: Range<usize>,
     ) -> Denoised {
         let blend_params = self.refine.and_then(|b| b.params(scales.noise_level));
-        let out = match &blend_params {
+        let mut out = match &blend_params {
             None => self.filtered_rows(win, stems, scales, rows.clone()),
             Some(p) => {
                 // the blend's boxes read the result `radius` rows beyond `rows`
@@ -213,6 +219,25 @@ impl NetworkDenoiser {
         };
         let c = win.centre();
         let aov_ch: Vec<usize> = c.aovs.iter().map(|a| a.channels()).collect();
+        if let (Some(guide), true) = (&c.guide, self.guide_mix > 0.0) {
+            timed(Stage::GuideMix, || {
+                let rgb_groups: Vec<usize> = aov_ch
+                    .iter()
+                    .scan(3, |at, &n| {
+                        let start = *at;
+                        *at += n;
+                        Some((n == 3).then_some(start))
+                    })
+                    .flatten()
+                    .collect();
+                guide_mix::mix_with_guide(
+                    &mut out,
+                    &guide.rows(rows.clone()),
+                    self.guide_mix,
+                    &rgb_groups,
+                )
+            });
+        }
         let has_alpha = c.alpha.is_some();
         let color = out.select_channels(0, 3);
         let mut at = 3;

@@ -84,6 +84,12 @@ pub struct Args {
     #[arg(long, value_name = "auto|off|K", default_value = "auto", num_args = 0..=1,
           default_missing_value = "auto", value_parser = parse_input_blend)]
     pub input_blend: BlendChoice,
+    /// Guided models: mix the result with each frame's own guide, (1 − W)·result + W·guide on
+    /// the beauty (AOVs get the beauty's per-pixel gain, so they still sum to it). The guide
+    /// keeps detail the window's kernels average away, the kernels remove per-frame error the
+    /// guide keeps; `off` (or 0) is the network's result alone, 1 the guide alone.
+    #[arg(long, value_name = "W|off", default_value = "off", value_parser = parse_guide_mix)]
+    pub guide_mix: f32,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -273,6 +279,14 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         radius: a.input_blend_radius,
         strength,
     });
+    if a.guide_mix > 0.0 && !n.denoiser.config.inputs.guide {
+        return Err(anyhow!(
+            "--guide-mix {} mixes a guided model's result with its guide; this model reads no \
+             guide (run a guided model with --guide)",
+            a.guide_mix
+        ));
+    }
+    n.guide_mix = a.guide_mix;
     Ok(n)
 }
 
@@ -294,6 +308,17 @@ fn parse_tile(s: &str) -> Result<TileChoice, String> {
 /// `--input-blend`'s value: how the noise scale is chosen, `None` for `off`.
 #[derive(Clone, Copy, Debug)]
 pub struct BlendChoice(pub Option<BlendStrength>);
+
+/// Parses `--guide-mix`: `off` or a weight in [0, 1].
+fn parse_guide_mix(s: &str) -> Result<f32, String> {
+    match s {
+        "off" => Ok(0.0),
+        w => match w.parse::<f32>() {
+            Ok(w) if (0.0..=1.0).contains(&w) => Ok(w),
+            _ => Err(format!("'{w}' is not off or a weight in [0, 1]")),
+        },
+    }
+}
 
 /// Parses `--input-blend`: `auto`, `off` or a positive noise scale.
 fn parse_input_blend(s: &str) -> Result<BlendChoice, String> {
