@@ -4,7 +4,8 @@
 # fence of thin wires, small text, fine textures, chrome, gold and glass.
 #   detail-test   held aside: never used in training or model selection. 192x112, 8 frames,
 #                 inputs at 4 / 11 / 32 spp plus 64 and 128 spp, 512-spp reference of frames 3-6.
-#   detail-val    model selection: the same levels, 256-spp reference of frame 4, OIDN teacher.
+#   detail-val    model selection: the same levels, 256-spp references of frames 3-5 (frame 4 alone
+#                 before 2026-12-04; frames 3 and 5 give flicker on validation), OIDN teacher.
 #   detail-train  per scene a base count n of 16..256 spp (levels 4, n/e, n), resolution 160 or
 #                 128 px square, 6 frames, and the OIDN teacher (an independent n-spp render).
 #   train-t       general scenes (radn_datagen/scene.py: hair, grass, the original generator)
@@ -19,7 +20,7 @@ py=python3
 $py -m radn_datagen dataset --split detail-test --scenes "${DETAIL_TEST:-4}" --frames 1-8 --res 192x112 --spp 32 \
     --extra-spp 64,128 --reference-spp 512 --reference-frames 3-6 --half --out "$out/detail-test"
 $py -m radn_datagen dataset --split detail-val --scenes "${DETAIL_VAL:-4}" --frames 1-8 --res 192x112 --spp 32 \
-    --extra-spp 64,128 --reference-spp 256 --reference-frames 4-4 --teacher-spp 128 --half --out "$out/detail-val"
+    --extra-spp 64,128 --reference-spp 256 --reference-frames 3-5 --teacher-spp 128 --half --out "$out/detail-val"
 $py -m radn_datagen dataset --split detail-train --scenes "${DETAIL_TRAIN:-90}" --frames 1-6 --res 160x160 \
     --res-scales 1,0.8 --spp 16,32,64,128,256 --teacher-spp 1x --half --out "$out/detail-train"
 $py -m radn_datagen dataset --split train --scenes "${TRAIN_T:-16}" --frames 1-6 --res 160x160 \

@@ -86,10 +86,12 @@ pub struct Args {
     pub input_blend: BlendChoice,
     /// Guided models: mix the result with each frame's own guide, (1 − W)·result + W·guide on
     /// the beauty (AOVs get the beauty's per-pixel gain, so they still sum to it). The guide
-    /// keeps detail the window's kernels average away, the kernels remove per-frame error the
-    /// guide keeps; `off` (or 0) is the network's result alone, 1 the guide alone.
-    #[arg(long, value_name = "W|off", default_value = "off", value_parser = parse_guide_mix)]
-    pub guide_mix: f32,
+    /// keeps detail the window's kernels average away; the kernels remove per-frame error the
+    /// guide keeps. `auto`: 0.5 for a guided model (chosen on the detail validation scenes:
+    /// docs/guided.md, "Guide mix"), nothing for others; `off` (or 0): the network's result
+    /// alone; 1: the guide alone.
+    #[arg(long, value_name = "auto|off|W", default_value = "auto", value_parser = parse_guide_mix)]
+    pub guide_mix: GuideMixChoice,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -279,14 +281,18 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         radius: a.input_blend_radius,
         strength,
     });
-    if a.guide_mix > 0.0 && !n.denoiser.config.inputs.guide {
-        return Err(anyhow!(
-            "--guide-mix {} mixes a guided model's result with its guide; this model reads no \
-             guide (run a guided model with --guide)",
-            a.guide_mix
-        ));
-    }
-    n.guide_mix = a.guide_mix;
+    let guided = n.denoiser.config.inputs.guide;
+    n.guide_mix = match a.guide_mix {
+        GuideMixChoice::Auto if guided => DEFAULT_GUIDE_MIX,
+        GuideMixChoice::Auto => 0.0,
+        GuideMixChoice::Weight(w) if w > 0.0 && !guided => {
+            return Err(anyhow!(
+                "--guide-mix {w} mixes a guided model's result with its guide; this model reads \
+                 no guide (run a guided model with --guide)"
+            ))
+        }
+        GuideMixChoice::Weight(w) => w,
+    };
     Ok(n)
 }
 
@@ -309,13 +315,27 @@ fn parse_tile(s: &str) -> Result<TileChoice, String> {
 #[derive(Clone, Copy, Debug)]
 pub struct BlendChoice(pub Option<BlendStrength>);
 
-/// Parses `--guide-mix`: `off` or a weight in [0, 1].
-fn parse_guide_mix(s: &str) -> Result<f32, String> {
+/// The guide mix `--guide-mix auto` gives a guided model: chosen on the detail validation
+/// scenes, where 0.25, 0.5 and 0.75 were measured (docs/guided.md, "Guide mix").
+pub const DEFAULT_GUIDE_MIX: f32 = 0.5;
+
+/// `--guide-mix`'s value.
+#[derive(Clone, Copy, Debug)]
+pub enum GuideMixChoice {
+    /// [`DEFAULT_GUIDE_MIX`] for a guided model, none for others.
+    Auto,
+    /// This weight of the guide (0: none).
+    Weight(f32),
+}
+
+/// Parses `--guide-mix`: `auto`, `off` or a weight in [0, 1].
+fn parse_guide_mix(s: &str) -> Result<GuideMixChoice, String> {
     match s {
-        "off" => Ok(0.0),
+        "auto" => Ok(GuideMixChoice::Auto),
+        "off" => Ok(GuideMixChoice::Weight(0.0)),
         w => match w.parse::<f32>() {
-            Ok(w) if (0.0..=1.0).contains(&w) => Ok(w),
-            _ => Err(format!("'{w}' is not off or a weight in [0, 1]")),
+            Ok(w) if (0.0..=1.0).contains(&w) => Ok(GuideMixChoice::Weight(w)),
+            _ => Err(format!("'{w}' is not auto, off or a weight in [0, 1]")),
         },
     }
 }
