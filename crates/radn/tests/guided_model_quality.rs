@@ -21,22 +21,22 @@ const FRAMES: std::ops::RangeInclusive<i64> = 3..=7;
 /// Per input level: the least PSNR margin (dB) over OIDN, the largest tMAE as a share of
 /// OIDN's, and the least PSNR margin over the default model, for models/guided.safetensors (a
 /// file, run with `--model`; models/README.md, "Guided model") with the default guide mix
-/// (0.5), measured on frames 3–7: OIDN 32.03 / 34.23 / 36.66 dB and tMAE 0.0195 / 0.0154 /
-/// 0.0118; guided 32.42 / 34.48 / 36.69 dB and 0.0181 / 0.0145 / 0.0117 (0.93 / 0.94 / 0.99
-/// of OIDN's); the stage-7 default 31.42 / 33.17 / 35.19 dB. Without the mix it was 32.40 /
-/// 34.07 / 35.73 dB.
+/// (0.5, `--guide-mix-from auto`), measured on frames 3–7: OIDN 32.03 / 34.23 / 36.66 dB and
+/// tMAE 0.0195 / 0.0154 / 0.0118; guided 32.53 / 34.48 / 36.69 dB and 0.0175 / 0.0145 /
+/// 0.0117 (0.90 / 0.94 / 0.99 of OIDN's); the stage-7 default 31.42 / 33.17 / 35.19 dB.
+/// Without the mix it was 32.40 / 34.07 / 35.73 dB.
 const GATES: [(&str, f64, f64, f64); 3] = [
-    ("low", 0.3, 0.96, 0.9),
+    ("low", 0.4, 0.92, 1.0),
     ("half", 0.15, 0.97, 1.2),
     ("high", -0.05, 1.02, 1.4),
 ];
 
 /// The same for the compiled-in guided model (models/guided-lean.safetensors) with the default
-/// guide mix, measured 32.34 / 34.51 / 36.78 dB and tMAE 0.0182 / 0.0145 / 0.0115 (0.93 /
-/// 0.94 / 0.97 of OIDN's); 0.92 / 1.34 / 1.59 dB over the stage-7 default. Without the mix it
+/// guide mix, measured 32.45 / 34.51 / 36.78 dB and tMAE 0.0176 / 0.0145 / 0.0115 (0.90 /
+/// 0.94 / 0.97 of OIDN's); 1.03 / 1.34 / 1.59 dB over the stage-7 default. Without the mix it
 /// was 32.30 / 34.28 / 36.08 dB: 0.58 dB behind OIDN at 32 spp.
 const LEAN_GATES: [(&str, f64, f64, f64); 3] = [
-    ("low", 0.2, 0.96, 0.8),
+    ("low", 0.35, 0.92, 0.95),
     ("half", 0.15, 0.97, 1.2),
     ("high", 0.05, 1.0, 1.45),
 ];

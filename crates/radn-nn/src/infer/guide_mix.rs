@@ -14,6 +14,9 @@
 //! RGB AOVs get the beauty's gain, so AOVs that summed to the denoised beauty sum to the mixed
 //! one. Alpha and single-channel AOVs are left as the kernels made them.
 
+use std::ops::Range;
+
+use radn_core::align::AlignedWindow;
 use radn_core::Plane;
 
 /// `ε` of the gain: the smallest linear colour the guide is divided by. Below it, a pixel
@@ -51,6 +54,65 @@ pub fn mix_with_guide(values: &mut Plane, guide: &Plane, weight: f32, rgb_groups
     }
 }
 
+/// Which guide the result is mixed with.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum MixGuide {
+    /// The centre frame's own guide: keeps its detail, and its per-frame error.
+    Centre,
+    /// The window's aligned guides averaged by their confidence ([`window_guide`]). It holds
+    /// less per-frame error (flicker), and loses detail wherever the warps blur or miss.
+    Window,
+    /// [`MixGuide::Window`] for frames noisy enough that the input blend leaves them alone
+    /// ([`crate::infer::input_blend::noise_scale_for_level`] gives none: 4 spp and some 11-spp
+    /// frames), where a frame's guide flickers most. [`MixGuide::Centre`] for cleaner ones,
+    /// where the warps would cost more detail than the averaging saves. Chosen on the detail
+    /// validation scenes (docs/guided.md, "The guide mix").
+    FollowLevel,
+}
+
+impl MixGuide {
+    /// Whether a frame of noise level `level` is mixed with the window's guide.
+    pub fn uses_window(self, level: Option<f32>) -> bool {
+        match self {
+            MixGuide::Centre => false,
+            MixGuide::Window => true,
+            MixGuide::FollowLevel => {
+                crate::infer::input_blend::noise_scale_for_level(level).is_none()
+            }
+        }
+    }
+}
+
+/// The confidence-weighted mean of the window's aligned guides over rows `rows`: per pixel,
+/// `Σ c_k·g_k / Σ c_k`. The centre frame has confidence 1, so the mean is defined everywhere,
+/// and a pixel no side frame reaches gets the centre's guide.
+pub fn window_guide(win: &AlignedWindow, rows: Range<usize>) -> Plane {
+    let w = win.centre().color.width();
+    let n = w * rows.len();
+    let mut sum = Plane::zeros(w, rows.len(), 3);
+    let mut weight = vec![0f32; n];
+    for f in &win.frames {
+        let Some(g) = &f.guide else { continue };
+        let conf = f.confidence.rows(rows.clone());
+        let conf = conf.channel(0);
+        let g = g.rows(rows.clone());
+        for ch in 0..3 {
+            for ((s, &v), &c) in sum.channel_mut(ch).iter_mut().zip(g.channel(ch)).zip(conf) {
+                *s += c * v;
+            }
+        }
+        for (s, &c) in weight.iter_mut().zip(conf) {
+            *s += c;
+        }
+    }
+    for ch in 0..3 {
+        for (s, &c) in sum.channel_mut(ch).iter_mut().zip(&weight) {
+            *s /= c.max(1e-6);
+        }
+    }
+    sum
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -82,6 +144,50 @@ mod tests {
                 assert_eq!(values.channel(9)[i], 0.75, "alpha is not mixed");
             }
         }
+    }
+
+    #[test]
+    fn the_window_guide_averages_by_confidence_and_falls_back_to_the_centre() {
+        use radn_core::align::AlignedFrame;
+        let (w, h) = (6, 4);
+        // frame k's guide is k everywhere; side frames are trusted on the left half only,
+        // frame +2 at half weight there
+        let frame = |k: i32| {
+            let conf = Plane::from_fn(w, h, 1, |x, _, _| match (k, x < w / 2) {
+                (0, _) => 1.0,
+                (_, false) => 0.0,
+                (2, true) => 0.5,
+                (_, true) => 1.0,
+            });
+            AlignedFrame {
+                offset: k,
+                color: Plane::zeros(w, h, 3),
+                alpha: None,
+                albedo: None,
+                normal: None,
+                depth: None,
+                aovs: vec![],
+                guide: Some(Plane::from_fn(w, h, 3, |_, _, _| k as f32)),
+                confidence: conf,
+                flow: Plane::zeros(w, h, 2),
+            }
+        };
+        let win = AlignedWindow {
+            frames: (-2..=2).map(frame).collect(),
+        };
+        let g = window_guide(&win, 1..3);
+        assert_eq!((g.width(), g.height()), (w, 2));
+        // left: (−2 − 1 + 0 + 1 + 0.5·2) / 4.5 = −1 / 4.5; right: the centre's 0
+        for y in 0..2 {
+            for x in 0..w {
+                let want = if x < w / 2 { -1.0 / 4.5 } else { 0.0 };
+                assert!((g.channel(1)[y * w + x] - want).abs() < 1e-6);
+            }
+        }
+        assert!(MixGuide::Window.uses_window(Some(0.01)));
+        assert!(!MixGuide::Centre.uses_window(Some(100.0)));
+        assert!(MixGuide::FollowLevel.uses_window(Some(100.0)));
+        assert!(!MixGuide::FollowLevel.uses_window(Some(0.01)));
     }
 
     #[test]

@@ -60,6 +60,9 @@ pub struct NetworkDenoiser {
     /// centre frame's own guide in the result, after the input blend (0: the network's result
     /// as it is). Ignored by networks without a guide.
     pub guide_mix: f32,
+    /// Which guide the guide mix uses: the centre frame's, the window's aligned guides
+    /// averaged, or by the frame's noise level ([`guide_mix::MixGuide`]).
+    pub guide_mix_from: guide_mix::MixGuide,
 }
 
 /// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
@@ -109,6 +112,7 @@ impl NetworkDenoiser {
             refine: None,
             warp_stem_features: true,
             guide_mix: 0.0,
+            guide_mix_from: guide_mix::MixGuide::FollowLevel,
         }
     }
 
@@ -230,12 +234,12 @@ impl NetworkDenoiser {
                     })
                     .flatten()
                     .collect();
-                guide_mix::mix_with_guide(
-                    &mut out,
-                    &guide.rows(rows.clone()),
-                    self.guide_mix,
-                    &rgb_groups,
-                )
+                let g = if self.guide_mix_from.uses_window(scales.noise_level) {
+                    guide_mix::window_guide(win, rows.clone())
+                } else {
+                    guide.rows(rows.clone())
+                };
+                guide_mix::mix_with_guide(&mut out, &g, self.guide_mix, &rgb_groups)
             });
         }
         let has_alpha = c.alpha.is_some();

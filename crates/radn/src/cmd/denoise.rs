@@ -8,6 +8,7 @@ use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
 use radn_core::sequence::{sequence_files, SequencePattern};
+use radn_nn::infer::guide_mix::MixGuide;
 use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
 
 use crate::input::{ChannelArgs, GuideArgs};
@@ -92,6 +93,13 @@ pub struct Args {
     /// alone; 1: the guide alone.
     #[arg(long, value_name = "auto|off|W", default_value = "auto", value_parser = parse_guide_mix)]
     pub guide_mix: GuideMixChoice,
+    /// With --guide-mix: which guide the result is mixed with. `centre`: the frame's own (its
+    /// detail and its flicker); `window`: the window's aligned guides averaged by their
+    /// confidence (less flicker, and less detail where the warps blur); `auto`: the window's for
+    /// frames whose noise level the input blend leaves alone (4 and some 11-spp frames), the
+    /// centre's for cleaner ones.
+    #[arg(long, value_name = "auto|centre|window", default_value = "auto", value_parser = parse_mix_from)]
+    pub guide_mix_from: MixGuide,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -282,6 +290,7 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         strength,
     });
     let guided = n.denoiser.config.inputs.guide;
+    n.guide_mix_from = a.guide_mix_from;
     n.guide_mix = match a.guide_mix {
         GuideMixChoice::Auto if guided => DEFAULT_GUIDE_MIX,
         GuideMixChoice::Auto => 0.0,
@@ -326,6 +335,16 @@ pub enum GuideMixChoice {
     Auto,
     /// This weight of the guide (0: none).
     Weight(f32),
+}
+
+/// Parses `--guide-mix-from`.
+fn parse_mix_from(s: &str) -> Result<MixGuide, String> {
+    match s {
+        "auto" => Ok(MixGuide::FollowLevel),
+        "centre" | "center" => Ok(MixGuide::Centre),
+        "window" => Ok(MixGuide::Window),
+        _ => Err(format!("'{s}' is not auto, centre or window")),
+    }
 }
 
 /// Parses `--guide-mix`: `auto`, `off` or a weight in [0, 1].
