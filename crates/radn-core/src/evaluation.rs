@@ -137,17 +137,10 @@ pub fn table(rows: &[FrameMetrics]) -> String {
     );
     let mean = mean_row(rows);
     for r in rows.iter().chain(std::iter::once(&mean)) {
-        let label = if r.frame == i64::MIN {
-            "mean".to_string()
-        } else {
-            r.frame.to_string()
-        };
-        let opt =
-            |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
         let _ = writeln!(
             s,
             "{:>8} {:>9.3} {:>8.4} {:>10.5} {:>9} {:>8}",
-            label,
+            row_label(r.frame),
             r.psnr,
             r.ssim,
             r.relmse,
@@ -156,6 +149,20 @@ pub fn table(rows: &[FrameMetrics]) -> String {
         );
     }
     s
+}
+
+/// A table row's label: the frame number, or `mean` for a mean row (`frame` is `i64::MIN`).
+pub(crate) fn row_label(frame: i64) -> String {
+    if frame == i64::MIN {
+        "mean".to_string()
+    } else {
+        frame.to_string()
+    }
+}
+
+/// An optional metric with `prec` decimals, `-` where the frame has none.
+pub(crate) fn opt(v: Option<f64>, prec: usize) -> String {
+    v.map_or("-".to_string(), |v| format!("{v:.prec$}"))
 }
 
 /// The metrics as JSON: the two sequences' names, every frame's row and the mean.

@@ -21,6 +21,7 @@
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
+use crate::evaluation::{opt, row_label};
 use crate::metrics::{psnr, psnr_from_mse, temporal, tonemap_plane};
 use crate::plane::Plane;
 
@@ -168,17 +169,10 @@ pub fn table(rows: &[NoiseFreeMetrics]) -> String {
     );
     let mean = mean_row(rows);
     for r in rows.iter().chain(std::iter::once(&mean)) {
-        let label = if r.frame == i64::MIN {
-            "mean".to_string()
-        } else {
-            r.frame.to_string()
-        };
-        let opt =
-            |v: Option<f64>, prec: usize| v.map_or("-".to_string(), |v| format!("{v:.prec$}"));
         let _ = writeln!(
             s,
             "{:>8} {:>9.3} {:>8} {:>9} {:>11.3} {:>11}",
-            label,
+            row_label(r.frame),
             r.psnr,
             opt(r.tpsnr, 2),
             opt(r.trmse, 5),
