@@ -22,7 +22,7 @@ use rayon::prelude::*;
 
 use crate::error::{Error, Result};
 use crate::evaluation::{opt, row_label};
-use crate::metrics::{psnr, psnr_from_mse, temporal, tonemap_plane};
+use crate::metrics::{self, psnr_from_mse, tonemap_plane};
 use crate::plane::Plane;
 
 /// One frame's metrics against the noise-free image, estimated from two references.
@@ -73,6 +73,17 @@ pub fn temporal_cross_mse(r: [&[f32]; 2], a: [&[f32]; 2], b: [&[f32]; 2]) -> f64
     s / n.max(1) as f64
 }
 
+/// The mean absolute difference of the frame-to-frame changes `a1 − a0` and `b1 − b0` (tMAE,
+/// as [`crate::metrics::temporal`] computes it, of values already tonemapped).
+fn temporal_mae(a: [&[f32]; 2], b: [&[f32]; 2]) -> f64 {
+    let n = a[1].len();
+    let s: f64 = (0..n)
+        .into_par_iter()
+        .map(|i| (((a[1][i] - a[0][i]) - (b[1][i] - b[0][i])) as f64).abs())
+        .sum();
+    s / n.max(1) as f64
+}
+
 fn same_shape(a: &Plane, b: &Plane, what: String) -> Result<()> {
     if a.width() != b.width() || a.height() != b.height() || a.channels() != b.channels() {
         return Err(Error::Incompatible {
@@ -108,7 +119,7 @@ pub fn evaluate(frames: &[(i64, &Plane, &Plane, &Plane)]) -> Result<Vec<NoiseFre
     frames
         .iter()
         .enumerate()
-        .map(|(i, (f, _, a, b))| -> Result<NoiseFreeMetrics> {
+        .map(|(i, (f, ..))| -> Result<NoiseFreeMetrics> {
             let [r, ta, tb] = &tonemapped[i];
             let mse = cross_mse(r.data(), ta.data(), tb.data());
             let previous = i
@@ -116,14 +127,13 @@ pub fn evaluate(frames: &[(i64, &Plane, &Plane, &Plane)]) -> Result<Vec<NoiseFre
                 .filter(|&j| f - frames[j].0 == step)
                 .map(|j| (j, &tonemapped[j]));
             let (tpsnr, trmse, reference_tmae) = match previous {
-                Some((j, [r0, a0, b0])) => {
+                Some((_, [r0, a0, b0])) => {
                     let tmse = temporal_cross_mse(
                         [r0.data(), r.data()],
                         [a0.data(), ta.data()],
                         [b0.data(), tb.data()],
                     );
-                    let (pa, pb) = (frames[j].2, frames[j].3);
-                    let (floor, _) = temporal(pa, a, pb, b)?;
+                    let floor = temporal_mae([a0.data(), ta.data()], [b0.data(), tb.data()]);
                     (
                         Some(psnr_from_mse(tmse)),
                         Some(tmse.max(0.0).sqrt()),
@@ -137,7 +147,7 @@ pub fn evaluate(frames: &[(i64, &Plane, &Plane, &Plane)]) -> Result<Vec<NoiseFre
                 psnr: psnr_from_mse(mse),
                 tpsnr,
                 trmse,
-                reference_psnr: psnr(a, b)?,
+                reference_psnr: psnr_from_mse(metrics::mse(ta, tb)),
                 reference_tmae,
             })
         })
@@ -193,6 +203,7 @@ pub fn to_json_value(rows: &[NoiseFreeMetrics]) -> serde_json::Value {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::metrics::psnr;
 
     /// The linear value whose tonemapped value is `t` (in (0, 1)).
     fn untonemap(t: f32) -> f32 {

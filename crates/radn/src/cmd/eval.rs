@@ -123,6 +123,17 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
+/// The reader of reference files (like `first`): the result's channel options with
+/// `--reference-preset`.
+fn reference_reader(a: &Args, first: &std::path::Path) -> Result<radn_core::frame::FrameReader> {
+    let ref_args = ChannelArgs {
+        preset: a.reference_preset.clone(),
+        mapping: None,
+        ..a.channels.clone()
+    };
+    ref_args.reader(first, Requirements::COLOR_ONLY)
+}
+
 /// `--second-reference`: reads the second reference's frames of the evaluation (every one
 /// must exist) and estimates the metrics against the noise-free image.
 fn noise_free(a: &Args, ev: &Evaluation, spec: &str) -> Result<Vec<NoiseFreeMetrics>> {
@@ -138,12 +149,7 @@ fn noise_free(a: &Args, ev: &Evaluation, spec: &str) -> Result<Vec<NoiseFreeMetr
                 .ok_or_else(|| anyhow!("--second-reference '{spec}' has no frame {f}"))
         })
         .collect::<Result<Vec<PathBuf>>>()?;
-    let ref_args = ChannelArgs {
-        preset: a.reference_preset.clone(),
-        mapping: None,
-        ..a.channels.clone()
-    };
-    let reader = ref_args.reader(&paths[0], Requirements::COLOR_ONLY)?;
+    let reader = reference_reader(a, &paths[0])?;
     let second = paths
         .par_iter()
         .map(|p| -> Result<Plane> {
@@ -167,12 +173,7 @@ pub fn evaluate(a: &Args, result_spec: &str, reference_spec: &str) -> Result<Eva
     let reference = sequence_files(reference_spec, None)?;
     let pairs = evaluation::match_frames(&result, &reference, result_spec, reference_spec)?;
     let rreader = a.channels.reader(&pairs[0].1, Requirements::COLOR_ONLY)?;
-    let ref_args = ChannelArgs {
-        preset: a.reference_preset.clone(),
-        mapping: None,
-        ..a.channels.clone()
-    };
-    let qreader = ref_args.reader(&pairs[0].2, Requirements::COLOR_ONLY)?;
+    let qreader = reference_reader(a, &pairs[0].2)?;
     let pb = crate::progress::frames(pairs.len() as u64, "evaluating");
     let ev = evaluation::evaluate(&pairs, &rreader, &qreader, || pb.inc(1))?;
     pb.finish_and_clear();
