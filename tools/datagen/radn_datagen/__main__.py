@@ -161,6 +161,8 @@ def main(argv=None):
     d.add_argument("--split", choices=sorted(SPLIT_BASE), required=True)
     d.add_argument("--scenes", type=int, required=True)
     d.add_argument("--out", required=True, help="the split's folder; scenes go in scene_<seed>/")
+    d.add_argument("--with-hair", action="store_true",
+                   help="only the split's scenes with particle hair (fur): the first S such seeds, in order")
     a = p.parse_args(argv)
     if a.cmd == "trim":
         from .trim import trim_scene
@@ -218,8 +220,11 @@ def main(argv=None):
         return 0
     t0 = time.time()
     detail = a.detail or a.split.startswith("detail")
-    for i in range(a.scenes):
-        seed = SPLIT_BASE[a.split] + i
+    if a.with_hair:
+        seeds = scenes.seeds_with_hair(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
+    else:
+        seeds = [SPLIT_BASE[a.split] + i for i in range(a.scenes)]
+    for i, seed in enumerate(seeds):
         out = os.path.join(a.out, f"scene_{seed}")
         print(f"scene {i + 1}/{a.scenes} (seed {seed}) -> {out}   elapsed {time.time() - t0:.0f} s", flush=True)
         one(seed, out, detail)

@@ -323,6 +323,21 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
     return desc
 
 
+def seeds_with_hair(first_seed: int, count: int, frames=(1, 9), resolution=(256, 256), layout=None,
+                    search=2000):
+    """The first `count` seeds from `first_seed` on whose scene (`build`, not rendered) carries
+    particle hair: training data for fur, which the generator otherwise gives only about one
+    scene in six. Seeds stay in their split's range, so a fur scene is never in two splits."""
+    found = []
+    for seed in range(first_seed, first_seed + search):
+        desc = build(seed, frames=frames, resolution=resolution, layout=layout)
+        if any(o.get("hair") for o in desc["objects"]):
+            found.append(seed)
+            if len(found) == count:
+                return found
+    raise ValueError(f"only {len(found)} of the {search} seeds from {first_seed} have hair; {count} were asked")
+
+
 def build_calibration(frames=(1, 2), resolution=(64, 48), step_px=(2.0, 1.0)):
     """A test scene with exactly known motion: an orthographic camera (10 px per unit) looking
     down at a textured plane that moves `step_px` pixels per frame (x right, y up)."""

@@ -227,3 +227,22 @@ def test_combine_weights_renders_by_samples_and_names_a_missing_frame(tmp_path):
                         str(tmp_path / "out2")], cwd=DATAGEN, capture_output=True, text=True)
     assert r.returncode != 0 and "frame_0002.exr" in r.stderr, r.stderr
     assert not (tmp_path / "out2").exists()
+
+
+def test_seeds_with_hair_are_the_first_of_the_split_whose_scene_has_hair():
+    """`dataset --with-hair` renders the first S seeds of the split with particle hair: every one
+    it picks has hair, every seed it skips before the last has none."""
+    code = """
+import json
+from radn_datagen import scene
+picked = scene.seeds_with_hair(1_000_000, 2, frames=(1, 2), resolution=(32, 32))
+hair = {s: any(o.get("hair") for o in scene.build(s, frames=(1, 2), resolution=(32, 32))["objects"])
+        for s in range(1_000_000, picked[-1] + 1)}
+print(json.dumps({"picked": picked, "hair": hair}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], cwd=DATAGEN, check=True, capture_output=True, text=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    picked, hair = result["picked"], {int(k): v for k, v in result["hair"].items()}
+    assert len(picked) == 2 and picked == sorted(picked)
+    assert all(hair[s] for s in picked)
+    assert not any(v for s, v in hair.items() if s not in picked)
