@@ -11,7 +11,13 @@
 #   train-t       general scenes (radn_datagen/scene.py: hair, grass, the original generator)
 #                 rendered like detail-train (160 or 128 px, 6 frames, n of 16..128 spp) with the
 #                 OIDN teacher; the stage-6 default trained on 15 detail-train + 8 of these.
-# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16] tools/datagen/make_detail_dataset.sh [OUT]
+#   train-fur     the first train-split scenes with particle hair (`--with-hair`; about one
+#                 general scene in six has it), rendered like train-t into the same folder.
+#   fur-train     scenes with fur and grass in view (radn_datagen/fur.py), rendered like train-t
+#                 at 16..64 spp with the OIDN teacher.
+#   fur-val       model selection for fur: like detail-val (4 / 11 / 32 spp plus 64 and 128),
+#                 256-spp references of frames 3-5; with it, the first val-split scene with hair.
+# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=1] tools/datagen/make_detail_dataset.sh [OUT]
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/radn}"
@@ -25,3 +31,12 @@ $py -m radn_datagen dataset --split detail-train --scenes "${DETAIL_TRAIN:-90}" 
     --res-scales 1,0.8 --spp 16,32,64,128,256 --teacher-spp 1x --half --out "$out/detail-train"
 $py -m radn_datagen dataset --split train --scenes "${TRAIN_T:-16}" --frames 1-6 --res 160x160 \
     --res-scales 1,0.8 --spp 16,32,64,128 --teacher-spp 1x --half --out "$out/train-t"
+$py -m radn_datagen dataset --split train --with-hair --scenes "${TRAIN_FUR:-4}" --frames 1-6 --res 160x160 \
+    --res-scales 1,0.8 --spp 16,32,64,128 --teacher-spp 1x --half --out "$out/train-t"
+$py -m radn_datagen dataset --split fur-train --scenes "${FUR_TRAIN:-5}" --frames 1-6 --res 160x160 \
+    --res-scales 1,0.8 --spp 16,32,64 --teacher-spp 1x --half --out "$out/fur-train"
+for split in val fur-val; do
+    hair=$([ "$split" = val ] && echo --with-hair || true)
+    $py -m radn_datagen dataset --split "$split" $hair --scenes "${FUR_VAL:-1}" --frames 1-8 --res 192x112 --spp 32 \
+        --extra-spp 64,128 --reference-spp 256 --reference-frames 3-5 --half --out "$out/fur-val"
+done

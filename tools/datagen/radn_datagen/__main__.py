@@ -19,9 +19,10 @@ from .oidn import MODES as OIDN_MODES
 
 # Disjoint seed ranges per split, so no scene is ever in two splits. The detail splits hold
 # scenes with fine detail (`detail.py`); detail-test is held aside: never used for training or
-# model selection.
+# model selection. The fur splits hold scenes with fur and grass (`fur.py`); fur-test is held aside.
 SPLIT_BASE = {"train": 1_000_000, "val": 2_000_000, "test": 3_000_000,
-              "detail-test": 4_000_000, "detail-train": 5_000_000, "detail-val": 6_000_000}
+              "detail-test": 4_000_000, "detail-train": 5_000_000, "detail-val": 6_000_000,
+              "fur-train": 7_000_000, "fur-val": 8_000_000, "fur-test": 9_000_000}
 TEACHER = "teacher"
 TEACHER_OIDN = "oidn"
 
@@ -61,7 +62,7 @@ def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
 
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
                  calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None,
-                 cycles_denoise=False):
+                 cycles_denoise=False, fur=False):
     """Renders one scene: the input levels (`levels` and `extra_spp`), the optional reference,
     and the optional teacher render (`teacher` spp) with its OIDN pseudo-reference."""
     import bpy  # noqa: F401  (imported here so --help works without bpy)
@@ -70,7 +71,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
     if calibration:
         desc = scenes.build_calibration(frames=frames, resolution=res)
     else:
-        desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail)
+        desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail, fur=fur)
     sc = scenes.bpy.context.scene
     render.configure(sc, exr_half=half, threads=threads, cycles_denoise=cycles_denoise)
     for lv in levels:
@@ -103,6 +104,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
                              if cycles_denoise else "off"),
         "render_seconds_this_run": round(time.time() - t0, 1),
         "detail": bool(detail),
+        "fur": bool(fur),
         "scene": desc,
     }
     return render.write_manifest(out, info)
@@ -126,6 +128,8 @@ def main(argv=None):
                         help="resolution scales drawn per scene, e.g. 1,0.75,0.5 (detail 1-2 px wide)")
     common.add_argument("--detail", action="store_true",
                         help="add fine detail (implied by the detail-* splits)")
+    common.add_argument("--fur", action="store_true",
+                        help="add furry objects and grass in view (implied by the fur-* splits)")
     common.add_argument("--reference-spp", type=int, default=0, help="also render a reference at this many spp")
     common.add_argument("--reference-frames", default=None, help="frame range of the reference (default: all)")
     common.add_argument("--half", action="store_true", help="write half-float PIZ EXRs (smaller)")
@@ -208,18 +212,19 @@ def main(argv=None):
     extra_spp = parse_spp_list(a.extra_spp)
     levels = tuple(a.levels.split(","))
 
-    def one(seed, out, detail, calibration=False):
+    def one(seed, out, detail, fur, calibration=False):
         spp, scene_res, extra = scene_settings(seed, spp_choices, res, res_scales, extra_spp)
         teacher = teacher_spp(a.teacher_spp, spp) or None
         return render_scene(seed, out, frames, scene_res, spp, a.reference_spp, ref_frames, a.half, a.threads,
                             a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher,
-                            cycles_denoise=a.cycles_denoise)
+                            cycles_denoise=a.cycles_denoise, fur=fur)
 
     if a.cmd == "scene":
-        print(f"wrote {one(a.seed, a.out, a.detail, a.calibration)}")
+        print(f"wrote {one(a.seed, a.out, a.detail, a.fur, a.calibration)}")
         return 0
     t0 = time.time()
     detail = a.detail or a.split.startswith("detail")
+    fur = a.fur or a.split.startswith("fur")
     if a.with_hair:
         seeds = scenes.seeds_with_hair(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
     else:
@@ -227,7 +232,7 @@ def main(argv=None):
     for i, seed in enumerate(seeds):
         out = os.path.join(a.out, f"scene_{seed}")
         print(f"scene {i + 1}/{a.scenes} (seed {seed}) -> {out}   elapsed {time.time() - t0:.0f} s", flush=True)
-        one(seed, out, detail)
+        one(seed, out, detail, fur)
     return 0
 
 

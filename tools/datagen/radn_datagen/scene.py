@@ -233,10 +233,12 @@ def _layout(rng, scene, outdoor):
     return desc
 
 
-def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, layout=None, detail=False):
+def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, layout=None, detail=False,
+          fur=False):
     """Builds scene `seed` in the current Blender session and returns its description. With
-    `detail`, also the fine detail of `detail.add_detail` (its own random stream: the rest of
-    the scene is the same with or without it)."""
+    `detail`, also the fine detail of `detail.add_detail`; with `fur`, the fur and grass of
+    `fur.add_fur` (each from its own random stream: the rest of the scene is the same with or
+    without them)."""
     rng = random.Random(seed)
     scene = reset()
     scene.frame_start, scene.frame_end = frames
@@ -320,6 +322,10 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
         from .detail import add_detail
 
         desc["detail"] = add_detail(seed, az, desc.get("room_size"), frames, _key_every_frame)
+    if fur:
+        from .fur import add_fur
+
+        desc["fur"] = add_fur(seed, az, desc.get("room_size"), frames, _key_every_frame)
     return desc
 
 

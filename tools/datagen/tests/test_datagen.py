@@ -246,3 +246,27 @@ print(json.dumps({"picked": picked, "hair": hair}))
     assert len(picked) == 2 and picked == sorted(picked)
     assert all(hair[s] for s in picked)
     assert not any(v for s, v in hair.items() if s not in picked)
+
+
+def test_fur_adds_strands_in_view_without_changing_the_rest_of_the_scene():
+    """`--fur` (the fur-* splits) adds furry objects and grass with dense particle hair, drawn
+    from their own random stream: the scene's own objects, lights and camera stay the same."""
+    code = """
+import json
+import bpy
+from radn_datagen import scene
+plain = scene.build(7_000_000, frames=(1, 2), resolution=(32, 32))
+furry = scene.build(7_000_000, frames=(1, 2), resolution=(32, 32), fur=True)
+systems = [m for o in bpy.data.objects for m in o.modifiers if m.type == "PARTICLE_SYSTEM"]
+print(json.dumps({"plain": plain, "furry": furry, "hair_systems": len(systems)}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], cwd=DATAGEN, check=True, capture_output=True, text=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    plain, furry = result["plain"], result["furry"]
+    fur = furry.pop("fur")
+    assert furry == plain
+    assert 1 <= len(fur["objects"]) <= 3
+    grass = [fur["grass"]] if fur["grass"] else []
+    assert all(f["strands"] >= 1500 * 5 and f["radius"] < 0.01 for f in fur["objects"] + grass)
+    own_hair = sum(1 for o in plain["objects"] if o.get("hair"))
+    assert result["hair_systems"] == own_hair + len(fur["objects"]) + len(grass)
