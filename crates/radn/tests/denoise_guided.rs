@@ -112,27 +112,35 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
     if oidn_or_skip(1).is_none() {
         return;
     }
+    const UNMIXED: [&str; 4] = ["--guide-mix", "off", "--guide-mix-outliers", "off"];
     for (blend, scales) in [(false, 1), (true, 1)] {
-        guided_aovs_sum_and_bands_equal_whole(blend, scales, "off");
+        guided_aovs_sum_and_bands_equal_whole(blend, scales, &UNMIXED);
     }
     // the guide mix moves the result toward the guide, AOVs along with the beauty
-    let unmixed = guided_aovs_sum_and_bands_equal_whole(true, 3, "off");
-    let mixed = guided_aovs_sum_and_bands_equal_whole(true, 3, "0.5");
+    let unmixed = guided_aovs_sum_and_bands_equal_whole(true, 3, &UNMIXED);
+    let mixed = guided_aovs_sum_and_bands_equal_whole(true, 3, &["--guide-mix", "0.5"]);
     assert!(
         worst(&unmixed, &mixed) > 1e-3,
         "the guide mix changes nothing"
     );
+    // the outlier ramp alone (on by default) takes the guide where the untrained network's
+    // result strays from it, and keeps AOVs summing and bands equal to whole frames
+    let outliers = guided_aovs_sum_and_bands_equal_whole(true, 3, &["--guide-mix", "off"]);
+    assert!(
+        worst(&unmixed, &outliers) > 1e-3,
+        "the outlier ramp changes nothing"
+    );
 }
 
 /// Denoises with guides, whole and in bands: AOVs sum to the beauty, bands equal the whole;
-/// returns frame 5's beauty.
-fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize, mix: &str) -> Vec<f32> {
+/// returns frame 5's beauty. `mix`: the guide mix's arguments.
+fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize, mix: &[&str]) -> Vec<f32> {
     let d = tempfile::tempdir().unwrap();
     let m = guided_model_with(d.path(), blend, scales);
     let input = with_aovs(d.path(), 0.25);
     for tile in ["0", "40"] {
         let out = format!("{}/out{tile}/f_####.exr", d.path().display());
-        radn_ok(&[
+        let mut args = vec![
             "denoise",
             "--model",
             m.to_str().unwrap(),
@@ -150,9 +158,9 @@ fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize, mix: &str) 
             "2",
             "--tile",
             tile,
-            "--guide-mix",
-            mix,
-        ]);
+        ];
+        args.extend(mix);
+        radn_ok(&args);
         let r = ExrFile::read(out.replace("####", "0005")).unwrap();
         let src = ExrFile::read(d.path().join("in/frame_0005.exr")).unwrap();
         assert_aovs_sum_to_beauty(&r, &src);
@@ -162,7 +170,7 @@ fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize, mix: &str) 
     let diff = worst(&whole, &rgb(&read("40"), "Combined"));
     assert!(
         diff < 1e-5,
-        "banded vs whole with OIDN guides (blend {blend}, {scales} scales, mix {mix}): {diff}"
+        "banded vs whole with OIDN guides (blend {blend}, {scales} scales, mix {mix:?}): {diff}"
     );
     whole
 }

@@ -13,6 +13,11 @@
 //! `m = 1 − w + w·g / max(r, ε)`. On the beauty, `r·m = (1 − w)·r + w·g` wherever `r ≥ ε`.
 //! RGB AOVs get the beauty's gain, so AOVs that summed to the denoised beauty sum to the mixed
 //! one. Alpha and single-channel AOVs are left as the kernels made them.
+//!
+//! An [`OutlierRamp`] raises the weight, pixel by pixel, up to the guide alone where the result
+//! and the guide disagree far more than detail does: fireflies the kernels spread instead of
+//! removing (caustics through glass), and pixels no sample lit that they keep dark (dense fur
+//! at 4 spp). Held-aside test scenes showed both (docs/guided.md, "Outliers").
 
 use std::ops::Range;
 
@@ -24,26 +29,74 @@ use radn_core::Plane;
 /// tonemapping, and it bounds the gain an AOV can get.
 pub const GUIDE_MIX_EPS: f32 = 1e-6;
 
+/// Where the guide mix takes the guide alone: a ramp over `d = |t(L_r) − t(L_g)|`, the
+/// difference of the result's and the guide's luminance (mean of RGB) each mapped by
+/// `t(x) = x / (1 + x)`. At `d ≤ from` the mix keeps its weight; from `to` on, the pixel is
+/// the guide's. In between the guide's weight rises linearly. Being a gain, it cannot lift a
+/// result of exactly zero (below [`GUIDE_MIX_EPS`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct OutlierRamp {
+    /// The difference below which a pixel keeps the mix's own weight.
+    pub from: f32,
+    /// The difference from which a pixel takes the guide alone.
+    pub to: f32,
+}
+
+/// The ramp `--guide-mix-outliers auto` gives: chosen on the detail and fur validation scenes
+/// among five (docs/guided.md, "Outliers"). Detail a spatial denoiser loses differs from it by
+/// a few hundredths in `t`; a firefly or an unlit pixel by tenths.
+pub const DEFAULT_OUTLIER_RAMP: OutlierRamp = OutlierRamp {
+    from: 0.03,
+    to: 0.1,
+};
+
+impl OutlierRamp {
+    /// The guide's weight at a pixel whose mapped luminances differ by `d` (0 to 1).
+    pub fn weight(&self, d: f32) -> f32 {
+        ((d - self.from) / (self.to - self.from)).clamp(0.0, 1.0)
+    }
+}
+
 /// Mixes `values` (colour in channels 0–2, then the signals whose RGB groups start at the
 /// offsets `rgb_groups`, every one getting the beauty's gain) with `guide` (RGB, the same
-/// pixels) by `weight` in [0, 1].
-pub fn mix_with_guide(values: &mut Plane, guide: &Plane, weight: f32, rgb_groups: &[usize]) {
+/// pixels) by `weight` in [0, 1], raised per pixel by `outliers` where given.
+pub fn mix_with_guide(
+    values: &mut Plane,
+    guide: &Plane,
+    weight: f32,
+    outliers: Option<OutlierRamp>,
+    rgb_groups: &[usize],
+) {
     assert!((0.0..=1.0).contains(&weight), "a mix weight is in [0, 1]");
     assert_eq!(
         (values.width(), values.height()),
         (guide.width(), guide.height()),
         "the guide covers the result's pixels"
     );
-    if weight == 0.0 {
+    if weight == 0.0 && outliers.is_none() {
         return;
     }
     let n = values.width() * values.height();
+    let mapped_luma = |p: &Plane, i: usize| {
+        let l = (0..3).map(|c| p.channel(c)[i].max(0.0)).sum::<f32>() / 3.0;
+        l / (1.0 + l)
+    };
+    let weights: Vec<f32> = match outliers {
+        None => vec![weight; n],
+        Some(ramp) => (0..n)
+            .map(|i| {
+                let d = (mapped_luma(values, i) - mapped_luma(guide, i)).abs();
+                weight.max(ramp.weight(d))
+            })
+            .collect(),
+    };
     for c in 0..3 {
         let gain: Vec<f32> = values
             .channel(c)
             .iter()
             .zip(guide.channel(c))
-            .map(|(&r, &g)| 1.0 - weight + weight * g.max(0.0) / r.max(GUIDE_MIX_EPS))
+            .zip(&weights)
+            .map(|((&r, &g), &w)| 1.0 - w + w * g.max(0.0) / r.max(GUIDE_MIX_EPS))
             .collect();
         for &at in std::iter::once(&0).chain(rgb_groups) {
             let ch = values.channel_mut(at + c);
@@ -130,7 +183,7 @@ mod tests {
             _ => 0.75,
         });
         let guide = Plane::from_fn(w, h, 3, |x, y, c| 0.5 * colour(x, y, c) + 0.3);
-        mix_with_guide(&mut values, &guide, 0.25, &[3, 6]);
+        mix_with_guide(&mut values, &guide, 0.25, None, &[3, 6]);
         for y in 0..h {
             for x in 0..w {
                 let i = y * w + x;
@@ -195,12 +248,41 @@ mod tests {
         let r = Plane::from_fn(4, 3, 3, |x, y, c| 0.1 + (x * y + c) as f32 * 0.05);
         let g = Plane::from_fn(4, 3, 3, |x, _, c| 0.4 + (x + c) as f32 * 0.02);
         let mut same = r.clone();
-        mix_with_guide(&mut same, &g, 0.0, &[]);
+        mix_with_guide(&mut same, &g, 0.0, None, &[]);
         assert_eq!(same.data(), r.data());
         let mut all = r.clone();
-        mix_with_guide(&mut all, &g, 1.0, &[]);
+        mix_with_guide(&mut all, &g, 1.0, None, &[]);
         for (a, b) in all.data().iter().zip(g.data()) {
             assert!((a - b).abs() < 1e-5);
         }
+    }
+
+    #[test]
+    fn outliers_take_the_guide_and_agreeing_pixels_keep_the_weight() {
+        // a 4x1 strip: agreeing, a firefly, a pixel kept almost unlit, one halfway up the ramp
+        let guide = Plane::from_fn(4, 1, 3, |_, _, _| 0.4);
+        let t = |x: f32| x / (1.0 + x);
+        // luminance whose mapped value is t(0.4) + d
+        let at = |d: f32| {
+            let m = t(0.4) + d;
+            m / (1.0 - m)
+        };
+        let ramp = DEFAULT_OUTLIER_RAMP;
+        let mid = 0.5 * (ramp.from + ramp.to);
+        let r = [at(0.01), 5.0, 0.002, at(mid)];
+        let mut values = Plane::from_fn(4, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.5 * r[x] });
+        mix_with_guide(&mut values, &guide, 0.25, Some(ramp), &[3]);
+        let want = [0.75 * r[0] + 0.25 * 0.4, 0.4, 0.4, 0.5 * r[3] + 0.5 * 0.4];
+        for (x, &want) in want.iter().enumerate() {
+            let got = values.channel(0)[x];
+            assert!((got - want).abs() < 1e-4, "pixel {x}: {got} vs {want}");
+            // the AOV (half the beauty) got the same gain
+            assert!((values.channel(3)[x] - 0.5 * got).abs() < 1e-4);
+        }
+        // no weight of its own: the ramp alone still acts
+        let mut alone = Plane::from_fn(4, 1, 3, |x, _, _| r[x]);
+        mix_with_guide(&mut alone, &guide, 0.0, Some(ramp), &[]);
+        assert!((alone.channel(0)[0] - r[0]).abs() < 1e-6);
+        assert!((alone.channel(0)[1] - 0.4).abs() < 1e-5);
     }
 }

@@ -63,6 +63,9 @@ pub struct NetworkDenoiser {
     /// Which guide the guide mix uses: the centre frame's, the window's aligned guides
     /// averaged, or by the frame's noise level ([`guide_mix::MixGuide`]).
     pub guide_mix_from: guide_mix::MixGuide,
+    /// Where the guide mix takes the guide alone, pixel by pixel: outliers of the result
+    /// against the guide ([`guide_mix::OutlierRamp`]). `None`: the mix's weight everywhere.
+    pub guide_mix_outliers: Option<guide_mix::OutlierRamp>,
 }
 
 /// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
@@ -113,6 +116,7 @@ impl NetworkDenoiser {
             warp_stem_features: true,
             guide_mix: 0.0,
             guide_mix_from: guide_mix::MixGuide::FollowLevel,
+            guide_mix_outliers: None,
         }
     }
 
@@ -223,7 +227,8 @@ impl NetworkDenoiser {
         };
         let c = win.centre();
         let aov_ch: Vec<usize> = c.aovs.iter().map(|a| a.channels()).collect();
-        if let (Some(guide), true) = (&c.guide, self.guide_mix > 0.0) {
+        let mixes = self.guide_mix > 0.0 || self.guide_mix_outliers.is_some();
+        if let (Some(guide), true) = (&c.guide, mixes) {
             timed(Stage::GuideMix, || {
                 let rgb_groups: Vec<usize> = aov_ch
                     .iter()
@@ -239,7 +244,13 @@ impl NetworkDenoiser {
                 } else {
                     guide.rows(rows.clone())
                 };
-                guide_mix::mix_with_guide(&mut out, &g, self.guide_mix, &rgb_groups)
+                guide_mix::mix_with_guide(
+                    &mut out,
+                    &g,
+                    self.guide_mix,
+                    self.guide_mix_outliers,
+                    &rgb_groups,
+                )
             });
         }
         let has_alpha = c.alpha.is_some();

@@ -8,7 +8,7 @@ use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
 use radn_core::sequence::{sequence_files, SequencePattern};
-use radn_nn::infer::guide_mix::MixGuide;
+use radn_nn::infer::guide_mix::{MixGuide, DEFAULT_OUTLIER_RAMP};
 use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
 
 use crate::input::{ChannelArgs, GuideArgs};
@@ -100,6 +100,13 @@ pub struct Args {
     /// centre's for cleaner ones.
     #[arg(long, value_name = "auto|centre|window", default_value = "auto", value_parser = parse_mix_from)]
     pub guide_mix_from: MixGuide,
+    /// Guided models: where the result and its guide disagree far more than detail does
+    /// (fireflies the kernels spread, pixels no sample lit that they keep dark), take the guide
+    /// alone, pixel by pixel. `auto`: on for a guided model (a ramp over the difference of
+    /// luminance mapped by x/(1+x), from 0.03 to 0.1), off for others; `off`: the mix's weight
+    /// everywhere.
+    #[arg(long, value_name = "auto|off", default_value = "auto", value_parser = ["auto", "off"])]
+    pub guide_mix_outliers: String,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -302,6 +309,8 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         }
         GuideMixChoice::Weight(w) => w,
     };
+    n.guide_mix_outliers =
+        (guided && a.guide_mix_outliers == "auto").then_some(DEFAULT_OUTLIER_RAMP);
     Ok(n)
 }
 
