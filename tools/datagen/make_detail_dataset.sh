@@ -17,7 +17,8 @@
 #                 at 16..64 spp with the OIDN teacher.
 #   fur-val       model selection for fur: like detail-val (4 / 11 / 32 spp plus 64 and 128),
 #                 256-spp references of frames 3-5; with it, the first val-split scene with hair.
-# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=1] tools/datagen/make_detail_dataset.sh [OUT]
+#   fur-test      held aside: 4 / 11 / 32 spp, 512-spp references of frames 3-6.
+# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=3 FUR_TEST=2] tools/datagen/make_detail_dataset.sh [OUT]
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/radn}"
@@ -35,8 +36,9 @@ $py -m radn_datagen dataset --split train --with-hair --scenes "${TRAIN_FUR:-4}"
     --res-scales 1,0.8 --spp 16,32,64,128 --teacher-spp 1x --half --out "$out/train-t"
 $py -m radn_datagen dataset --split fur-train --scenes "${FUR_TRAIN:-5}" --frames 1-6 --res 160x160 \
     --res-scales 1,0.8 --spp 16,32,64 --teacher-spp 1x --half --out "$out/fur-train"
-for split in val fur-val; do
-    hair=$([ "$split" = val ] && echo --with-hair || true)
-    $py -m radn_datagen dataset --split "$split" $hair --scenes "${FUR_VAL:-1}" --frames 1-8 --res 192x112 --spp 32 \
-        --extra-spp 64,128 --reference-spp 256 --reference-frames 3-5 --half --out "$out/fur-val"
-done
+$py -m radn_datagen dataset --split fur-val --scenes "${FUR_VAL:-3}" --frames 1-8 --res 192x112 --spp 32 \
+    --extra-spp 64,128 --reference-spp 256 --reference-frames 3-5 --half --out "$out/fur-val"
+$py -m radn_datagen dataset --split val --with-hair --scenes 1 --frames 1-8 --res 192x112 --spp 32 \
+    --extra-spp 64,128 --reference-spp 256 --reference-frames 3-5 --half --out "$out/fur-val"
+$py -m radn_datagen dataset --split fur-test --scenes "${FUR_TEST:-2}" --frames 1-8 --res 192x112 --spp 32 \
+    --reference-spp 512 --reference-frames 3-6 --half --out "$out/fur-test"

@@ -77,26 +77,24 @@ pub fn mix_with_guide(
         return;
     }
     let n = values.width() * values.height();
-    let mapped_luma = |p: &Plane, i: usize| {
-        let l = (0..3).map(|c| p.channel(c)[i].max(0.0)).sum::<f32>() / 3.0;
-        l / (1.0 + l)
-    };
-    let weights: Vec<f32> = match outliers {
-        None => vec![weight; n],
-        Some(ramp) => (0..n)
-            .map(|i| {
-                let d = (mapped_luma(values, i) - mapped_luma(guide, i)).abs();
-                weight.max(ramp.weight(d))
-            })
-            .collect(),
-    };
+    // per pixel: the ramp's weight where it is on, else the mix's own
+    let weights: Option<Vec<f32>> = outliers.map(|ramp| {
+        mapped_luma(values)
+            .iter()
+            .zip(mapped_luma(guide))
+            .map(|(r, g)| weight.max(ramp.weight((r - g).abs())))
+            .collect()
+    });
     for c in 0..3 {
         let gain: Vec<f32> = values
             .channel(c)
             .iter()
             .zip(guide.channel(c))
-            .zip(&weights)
-            .map(|((&r, &g), &w)| 1.0 - w + w * g.max(0.0) / r.max(GUIDE_MIX_EPS))
+            .enumerate()
+            .map(|(i, (&r, &g))| {
+                let w = weights.as_ref().map_or(weight, |ws| ws[i]);
+                1.0 - w + w * g.max(0.0) / r.max(GUIDE_MIX_EPS)
+            })
             .collect();
         for &at in std::iter::once(&0).chain(rgb_groups) {
             let ch = values.channel_mut(at + c);
@@ -105,6 +103,19 @@ pub fn mix_with_guide(
             }
         }
     }
+}
+
+/// Per pixel, the luminance (mean of RGB, negatives as 0) mapped by `x / (1 + x)`.
+fn mapped_luma(p: &Plane) -> Vec<f32> {
+    let (r, g, b) = (p.channel(0), p.channel(1), p.channel(2));
+    r.iter()
+        .zip(g)
+        .zip(b)
+        .map(|((&r, &g), &b)| {
+            let l = (r.max(0.0) + g.max(0.0) + b.max(0.0)) / 3.0;
+            l / (1.0 + l)
+        })
+        .collect()
 }
 
 /// Which guide the result is mixed with.

@@ -105,8 +105,8 @@ pub struct Args {
     /// alone, pixel by pixel. `auto`: on for a guided model (a ramp over the difference of
     /// luminance mapped by x/(1+x), from 0.03 to 0.1), off for others; `off`: the mix's weight
     /// everywhere.
-    #[arg(long, value_name = "auto|off", default_value = "auto", value_parser = ["auto", "off"])]
-    pub guide_mix_outliers: String,
+    #[arg(long, value_name = "auto|off", default_value = "auto", value_parser = parse_auto_off)]
+    pub guide_mix_outliers: bool,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -309,8 +309,7 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         }
         GuideMixChoice::Weight(w) => w,
     };
-    n.guide_mix_outliers =
-        (guided && a.guide_mix_outliers == "auto").then_some(DEFAULT_OUTLIER_RAMP);
+    n.guide_mix_outliers = (guided && a.guide_mix_outliers).then_some(DEFAULT_OUTLIER_RAMP);
     Ok(n)
 }
 
@@ -353,6 +352,15 @@ fn parse_mix_from(s: &str) -> Result<MixGuide, String> {
         "centre" | "center" => Ok(MixGuide::Centre),
         "window" => Ok(MixGuide::Window),
         _ => Err(format!("'{s}' is not auto, centre or window")),
+    }
+}
+
+/// Parses an `auto|off` switch: true for `auto`.
+fn parse_auto_off(s: &str) -> Result<bool, String> {
+    match s {
+        "auto" => Ok(true),
+        "off" => Ok(false),
+        _ => Err(format!("'{s}' is not auto or off")),
     }
 }
 
