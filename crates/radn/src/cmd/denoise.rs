@@ -105,7 +105,8 @@ pub struct Args {
     /// alone, pixel by pixel. `auto`: on for a guided model (a ramp over the difference of
     /// luminance mapped by x/(1+x), from 0.03 to 0.1), off for others; `off`: the mix's weight
     /// everywhere.
-    #[arg(long, value_name = "auto|off", default_value = "auto", value_parser = parse_auto_off)]
+    #[arg(long, value_name = "auto|off", default_value = "auto", value_parser = parse_auto_off,
+          action = clap::ArgAction::Set)]
     pub guide_mix_outliers: bool,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
