@@ -57,7 +57,11 @@ fn random_windows(
     (random(cfg.input_channels()), random(3))
 }
 
-/// Times training steps of a network on batches of random `tile × tile` windows.
+/// Times training steps of a network on batches of random `tile × tile` windows. The target is
+/// the centre frame's own colour: kernels that keep the centre pixel reach it exactly, so every
+/// working step lowers the loss from the box filter the network starts as. (Against a random
+/// target unrelated to the window, 5 steps at this learning rate moved the loss by ±1e-4 on a
+/// CPU and on a GPU alike, and "the loss falls" was a coin toss.)
 pub fn time_network(
     cfg: &NetConfig,
     tile: usize,
@@ -67,11 +71,10 @@ pub fn time_network(
 ) -> StepTiming {
     let mut d = Denoiser::new(cfg.clone(), device);
     let (x, v) = random_windows(cfg, batch, tile, device);
-    let y = Tensor::<4>::random(
-        [batch, 3, tile, tile],
-        Distribution::Uniform(0.0, 1.0),
-        device,
-    );
+    let y = v
+        .clone()
+        .narrow(1, cfg.frames / 2, 1)
+        .reshape([batch, 3, tile, tile]);
     let mut optim = AdamConfig::new().init();
     let thr = cfg.default_threshold();
     let mut times = Vec::new();

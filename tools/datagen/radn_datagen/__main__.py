@@ -167,6 +167,9 @@ def main(argv=None):
     d.add_argument("--out", required=True, help="the split's folder; scenes go in scene_<seed>/")
     d.add_argument("--with-hair", action="store_true",
                    help="only the split's scenes with particle hair (fur): the first S such seeds, in order")
+    d.add_argument("--with-glass", action="store_true",
+                   help="only the split's glass-heavy scenes (caustics through glass): the first S such "
+                        "seeds, in order")
     a = p.parse_args(argv)
     if a.cmd == "trim":
         from .trim import trim_scene
@@ -225,8 +228,12 @@ def main(argv=None):
     t0 = time.time()
     detail = a.detail or a.split.startswith("detail")
     fur = a.fur or a.split.startswith("fur")
+    if a.with_hair and a.with_glass:
+        raise SystemExit("--with-hair and --with-glass pick different scenes: give one")
     if a.with_hair:
         seeds = scenes.seeds_with_hair(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
+    elif a.with_glass:
+        seeds = scenes.seeds_with_glass(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
     else:
         seeds = [SPLIT_BASE[a.split] + i for i in range(a.scenes)]
     for i, seed in enumerate(seeds):

@@ -329,19 +329,47 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
     return desc
 
 
-def seeds_with_hair(first_seed: int, count: int, frames=(1, 9), resolution=(256, 256), layout=None,
-                    search=2000):
-    """The first `count` seeds from `first_seed` on whose scene (`build`, not rendered) carries
-    particle hair: training data for fur, which the generator otherwise gives only about one
-    scene in six. Seeds stay in their split's range, so a fur scene is never in two splits."""
+def has_hair(desc) -> bool:
+    """Whether a built scene carries particle hair (fur)."""
+    return any(o.get("hair") for o in desc["objects"])
+
+
+GLASS_HEAVY_MIN = 3
+"""Glass objects from which a scene counts as glass-heavy: enough transmissive objects that
+caustics through glass cover much of the floor (the held-aside test scene 3 000 002 has five)."""
+
+
+def is_glass_heavy(desc) -> bool:
+    """Whether a built scene has at least `GLASS_HEAVY_MIN` glass objects."""
+    return sum(o.get("material") == "glass" for o in desc["objects"]) >= GLASS_HEAVY_MIN
+
+
+def seeds_where(first_seed: int, count: int, wanted, what: str, frames=(1, 9), resolution=(256, 256),
+                layout=None, search=2000):
+    """The first `count` seeds from `first_seed` on whose scene (`build`, not rendered) satisfies
+    `wanted(desc)`: data for what the generator gives only now and then (hair in about one scene in
+    six). Seeds stay in their split's range, so such a scene is never in two splits."""
     found = []
     for seed in range(first_seed, first_seed + search):
         desc = build(seed, frames=frames, resolution=resolution, layout=layout)
-        if any(o.get("hair") for o in desc["objects"]):
+        if wanted(desc):
             found.append(seed)
             if len(found) == count:
                 return found
-    raise ValueError(f"only {len(found)} of the {search} seeds from {first_seed} have hair; {count} were asked")
+    raise ValueError(f"only {len(found)} of the {search} seeds from {first_seed} have {what}; {count} were asked")
+
+
+def seeds_with_hair(first_seed: int, count: int, frames=(1, 9), resolution=(256, 256), layout=None,
+                    search=2000):
+    """The first `count` seeds from `first_seed` on whose scene carries particle hair."""
+    return seeds_where(first_seed, count, has_hair, "hair", frames, resolution, layout, search)
+
+
+def seeds_with_glass(first_seed: int, count: int, frames=(1, 9), resolution=(256, 256), layout=None,
+                     search=2000):
+    """The first `count` seeds from `first_seed` on whose scene is glass-heavy (`is_glass_heavy`):
+    validation and training data for caustics through glass."""
+    return seeds_where(first_seed, count, is_glass_heavy, "glass", frames, resolution, layout, search)
 
 
 def build_calibration(frames=(1, 2), resolution=(64, 48), step_px=(2.0, 1.0)):

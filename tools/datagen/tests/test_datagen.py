@@ -248,6 +248,31 @@ print(json.dumps({"picked": picked, "hair": hair}))
     assert not any(v for s, v in hair.items() if s not in picked)
 
 
+def test_seeds_with_glass_are_the_first_of_the_split_whose_scene_is_glass_heavy():
+    """`dataset --with-glass` renders the first S glass-heavy seeds of the split (at least
+    GLASS_HEAVY_MIN glass objects): every one it picks has that many, every seed it skips before
+    the last has fewer."""
+    code = """
+import json
+from radn_datagen import scene
+picked = scene.seeds_with_glass(2_000_000, 1, frames=(1, 2), resolution=(32, 32))
+glass = {s: sum(o["material"] == "glass" for o in scene.build(s, frames=(1, 2), resolution=(32, 32))["objects"])
+         for s in range(2_000_000, picked[-1] + 1)}
+print(json.dumps({"picked": picked, "glass": glass, "min": scene.GLASS_HEAVY_MIN}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], cwd=DATAGEN, check=True, capture_output=True, text=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    picked, glass, least = result["picked"], {int(k): v for k, v in result["glass"].items()}, result["min"]
+    assert len(picked) == 1 and least >= 2
+    assert glass[picked[0]] >= least
+    assert all(v < least for s, v in glass.items() if s not in picked)
+    assert any(v > 0 for s, v in glass.items() if s not in picked), "skipped scenes with some glass"
+    r = subprocess.run([sys.executable, "-m", "radn_datagen", "dataset", "--split", "val", "--scenes", "1",
+                        "--with-hair", "--with-glass", "--out", "/nonexistent"], cwd=DATAGEN,
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "give one" in r.stderr, r.stderr
+
+
 def test_fur_adds_strands_in_view_without_changing_the_rest_of_the_scene():
     """`--fur` (the fur-* splits) adds furry objects and grass with dense particle hair, drawn
     from their own random stream: the scene's own objects, lights and camera stay the same."""

@@ -27,7 +27,7 @@ use crate::infer::input_blend::InputBlend;
 use crate::infer::stems::WindowStems;
 use crate::model::demod::{filter, Demodulation};
 use crate::model::guide_blend::GuideBlend;
-use crate::model::Denoiser;
+use crate::model::{Denoiser, GuideWeights};
 use crate::profile::{self, timed, Stage};
 
 /// A trained network as a sequence method.
@@ -66,6 +66,10 @@ pub struct NetworkDenoiser {
     /// Where the guide mix takes the guide alone, pixel by pixel: outliers of the result
     /// against the guide ([`guide_mix::OutlierRamp`]). `None`: the mix's weight everywhere.
     pub guide_mix_outliers: Option<guide_mix::OutlierRamp>,
+    /// For a network with a learned guide mix ([`crate::model::config::NetConfig::guide_mix_head`]):
+    /// mix by the weight it predicts per pixel (true, the default for such a network) instead of
+    /// [`NetworkDenoiser::guide_mix`]. Ignored by other networks.
+    pub guide_mix_learned: bool,
 }
 
 /// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
@@ -117,6 +121,7 @@ impl NetworkDenoiser {
             guide_mix: 0.0,
             guide_mix_from: guide_mix::MixGuide::FollowLevel,
             guide_mix_outliers: None,
+            guide_mix_learned: true,
         }
     }
 
@@ -204,14 +209,16 @@ impl NetworkDenoiser {
         rows: Range<usize>,
     ) -> Denoised {
         let blend_params = self.refine.and_then(|b| b.params(scales.noise_level));
-        let mut out = match &blend_params {
+        let (mut out, learned) = match &blend_params {
             None => self.filtered_rows(win, stems, scales, rows.clone()),
             Some(p) => {
                 // the blend's boxes read the result `radius` rows beyond `rows`
                 let h = win.centre().color.height();
                 let wide = rows.start.saturating_sub(p.radius)..(rows.end + p.radius).min(h);
-                let filtered = self.filtered_rows(win, stems, scales, wide.clone());
-                timed(Stage::InputBlend, || {
+                let (filtered, learned) = self.filtered_rows(win, stems, scales, wide.clone());
+                let inside = rows.start - wide.start..rows.end - wide.start;
+                let learned = learned.map(|w| w.rows(inside.clone()));
+                let blended = timed(Stage::InputBlend, || {
                     let input = centre_values(win, wide.clone());
                     let var = window_noise_variance(win, wide.clone());
                     let weight = blend_weight(
@@ -220,14 +227,14 @@ impl NetworkDenoiser {
                         &var,
                         p,
                     );
-                    blend(&input, &filtered, &weight)
-                        .rows(rows.start - wide.start..rows.end - wide.start)
-                })
+                    blend(&input, &filtered, &weight).rows(inside)
+                });
+                (blended, learned)
             }
         };
         let c = win.centre();
         let aov_ch: Vec<usize> = c.aovs.iter().map(|a| a.channels()).collect();
-        let mixes = self.guide_mix > 0.0 || self.guide_mix_outliers.is_some();
+        let mixes = self.guide_mix > 0.0 || self.guide_mix_outliers.is_some() || learned.is_some();
         if let (Some(guide), true) = (&c.guide, mixes) {
             timed(Stage::GuideMix, || {
                 let rgb_groups: Vec<usize> = aov_ch
@@ -244,10 +251,14 @@ impl NetworkDenoiser {
                 } else {
                     guide.rows(rows.clone())
                 };
+                let weight = match &learned {
+                    Some(w) => guide_mix::MixWeight::PerPixel(w.channel(0)),
+                    None => guide_mix::MixWeight::Uniform(self.guide_mix),
+                };
                 guide_mix::mix_with_guide(
                     &mut out,
                     &g,
-                    self.guide_mix,
+                    weight,
                     self.guide_mix_outliers,
                     &rgb_groups,
                 )
@@ -269,14 +280,16 @@ impl NetworkDenoiser {
     }
 
     /// The kernels' result for rows `rows` of an aligned window, every signal stacked along
-    /// channels: colour, then each AOV, then alpha.
+    /// channels: colour, then each AOV, then alpha; and the weights of the learned guide mix
+    /// over those rows where the network has one and [`NetworkDenoiser::guide_mix_learned`]
+    /// asks for it.
     fn filtered_rows(
         &self,
         win: &AlignedWindow,
         stems: Option<&WindowStems>,
         scales: FeatureScales,
         rows: Range<usize>,
-    ) -> Plane {
+    ) -> (Plane, Option<Plane>) {
         let c = win.centre();
         let t = win.frames.len();
         // every signal stacked along channels: colour, AOVs, alpha
@@ -312,14 +325,34 @@ impl NetworkDenoiser {
         }
         let eps = self.denoiser.config.demodulate;
         let inputs = &self.denoiser.config.inputs;
-        self.run_tiled(win, stems, scales, rows, values, chans, |p, beta, v, x| {
-            let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
-            let v = match beta {
-                Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
-                None => v,
-            };
-            filter(p, v, demod.as_ref())
-        })
+        let learned = self.guide_mix_learned && self.denoiser.config.guide_mix_head;
+        let out = self.run_tiled(
+            win,
+            stems,
+            scales,
+            rows,
+            values,
+            chans,
+            |p, guides, v, x| {
+                let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
+                let v = match guides.blend {
+                    Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
+                    None => v,
+                };
+                let filtered = filter(p, v, demod.as_ref());
+                match guides.mix {
+                    // the mix weights travel as one more channel of the tiles' result
+                    Some(w) if learned => Tensor::cat(vec![filtered, w], 1),
+                    _ => filtered,
+                }
+            },
+        );
+        if learned {
+            let w = out.select_channels(chans, 1);
+            (out.select_channels(0, chans), Some(w))
+        } else {
+            (out, None)
+        }
     }
 }
 
@@ -356,7 +389,7 @@ impl NetworkDenoiser {
 
     /// Runs the network tile by tile over rows `rows` (each tile with a halo of the receptive
     /// field, clamped to the window, so the result does not depend on the tiling) and assembles
-    /// the planes of `f(prediction, guide-blend weights, values, features)`, `values` being `[B, T, chans, h, w]`
+    /// the planes of `f(prediction, guide weights, values, features)`, `values` being `[B, T, chans, h, w]`
     /// from `values(region)` and `features` the network input of the regions. Consecutive tiles
     /// whose regions have the same size share one network call, up to `batch` of them. Features
     /// and values exist for one call's tiles at a time, never for the whole frame.
@@ -369,7 +402,7 @@ impl NetworkDenoiser {
         rows: Range<usize>,
         values: impl Fn(Region) -> Vec<f32>,
         chans: usize,
-        f: impl Fn(&crate::model::Prediction, Option<Tensor<5>>, Tensor<5>, &Tensor<5>) -> Tensor<4>,
+        f: impl Fn(&crate::model::Prediction, GuideWeights, Tensor<5>, &Tensor<5>) -> Tensor<4>,
     ) -> Plane {
         let w = win.centre().color.width();
         let tiles = self.tiles(win, rows.clone(), stems.is_some());
@@ -437,7 +470,7 @@ impl NetworkDenoiser {
         group: &[Tile],
         values: &impl Fn(Region) -> Vec<f32>,
         chans: usize,
-        f: &impl Fn(&crate::model::Prediction, Option<Tensor<5>>, Tensor<5>, &Tensor<5>) -> Tensor<4>,
+        f: &impl Fn(&crate::model::Prediction, GuideWeights, Tensor<5>, &Tensor<5>) -> Tensor<4>,
         out: &mut Option<Plane>,
         w: usize,
         rows: &Range<usize>,
@@ -478,7 +511,7 @@ impl NetworkDenoiser {
             &self.device,
         );
         let v = Tensor::<5>::from_data(TensorData::new(vals, [b, t, chans, rh, rw]), &self.device);
-        let (prediction, beta) = match stems {
+        let (prediction, guides) = match stems {
             Some(_) => {
                 let c = self.denoiser.stem_channels();
                 let stem =
@@ -488,7 +521,7 @@ impl NetworkDenoiser {
             }
             None => self.denoiser.predict_guided(x.clone(), self.threshold),
         };
-        let res = timed(Stage::Kernels, || f(&prediction, beta, v, &x));
+        let res = timed(Stage::Kernels, || f(&prediction, guides, v, &x));
         let oc = res.dims()[1];
         let res = res.to_data().try_to_vec::<f32>().expect("f32 output");
         let out = out.get_or_insert_with(|| Plane::zeros(w, rows.len(), oc));
@@ -991,6 +1024,83 @@ mod tests {
             // float rounding: 2e-7; a halo of 8 px instead of the bound: 1e-5
             assert!(
                 worst < 1e-6,
+                "tile {tile}: tiled and whole differ by {worst}"
+            );
+        }
+    }
+
+    #[test]
+    fn a_learned_guide_mix_weighs_each_pixel_and_tiles_equal_the_whole_frame() {
+        let device = Device::flex();
+        let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/guided-lean.safetensors");
+        let mut d = crate::model::store::load(&shipped, &device)
+            .unwrap()
+            .with_guide_mix_head(true, &device)
+            .unwrap();
+        // a head far from its start (w = 0.5 everywhere): weights that vary over the frame
+        let c = d.feature_channels();
+        let mut head = burn::nn::conv::Conv2dConfig::new([c, 1], [3, 3])
+            .with_padding(burn::nn::PaddingConfig2d::Same)
+            .with_initializer(burn::nn::Initializer::Normal {
+                mean: 0.0,
+                std: 0.5,
+            })
+            .init(&device);
+        head.bias = Some(burn::module::Param::from_tensor(Tensor::zeros(
+            [1],
+            &device,
+        )));
+        d.set_guide_mix_head(head);
+        d.materialize();
+        let halo = d.receptive_radius().unwrap();
+        let (w, h) = (2 * halo + 70, 30);
+        let mut win = window(w, h);
+        for (k, f) in win.frames.iter_mut().enumerate() {
+            f.guide = Some(Plane::from_fn(w, h, 3, |x, y, ch| {
+                0.2 + (((x * 5 + y * 3 + ch + k) % 17) as f32) / 20.0
+            }));
+        }
+        let mut n = NetworkDenoiser::new(d, device.clone());
+        n.tile = 0;
+        n.guide_mix_from = guide_mix::MixGuide::Centre;
+        let learned = n.denoise_aligned(&win);
+        // the kernels' result alone, and the guide alone, by fixed weights
+        n.guide_mix_learned = false;
+        n.guide_mix = 0.0;
+        let r = n.denoise_aligned(&win).color;
+        n.guide_mix = 1.0;
+        let g = n.denoise_aligned(&win).color;
+        // each pixel is (1 − w)·r + w·g with one w in [0, 1] for its three channels
+        let mut weights = Vec::new();
+        for i in 0..w * h {
+            let solve = |ch: usize| {
+                let (r, g, m) = (
+                    r.channel(ch)[i],
+                    g.channel(ch)[i],
+                    learned.color.channel(ch)[i],
+                );
+                ((g - r).abs() > 0.05).then(|| (m - r) / (g - r))
+            };
+            let ws: Vec<f32> = (0..3).filter_map(solve).collect();
+            if let Some(&first) = ws.first() {
+                assert!((-1e-3..=1.001).contains(&first), "pixel {i}: w = {first}");
+                assert!(ws.iter().all(|x| (x - first).abs() < 1e-3), "{ws:?}");
+                weights.push(first);
+            }
+        }
+        assert!(weights.len() > w * h / 2);
+        let (lo, hi) = weights
+            .iter()
+            .fold((1.0f32, 0.0f32), |(lo, hi), &x| (lo.min(x), hi.max(x)));
+        assert!(hi - lo > 0.3, "the weights vary: {lo} to {hi}");
+        // tile by tile, the weights travel with the kernels' result
+        n.guide_mix_learned = true;
+        for tile in [32usize, 16] {
+            n.tile = tile;
+            let worst = worst_difference(&learned, &n.denoise_aligned(&win));
+            assert!(
+                worst < 1e-5,
                 "tile {tile}: tiled and whole differ by {worst}"
             );
         }

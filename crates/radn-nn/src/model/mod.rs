@@ -12,6 +12,7 @@ pub mod demod;
 pub mod guide_blend;
 pub mod kernel;
 pub mod layers;
+pub mod learned_mix;
 pub mod multiscale;
 pub mod ra_block;
 pub mod store;
@@ -55,6 +56,11 @@ fn box_head(cin: usize, taps: usize, bias: f32, scale: f32, device: &Device) -> 
 /// computes almost what it did without it.
 pub const GUIDE_BLEND_INIT_BIAS: f32 = -4.0;
 
+/// The learned guide mix head's initial bias: `w = sigmoid(0) = 0.5`, the fixed weight the
+/// guided models are mixed with at inference (`radn denoise --guide-mix auto`), so a network
+/// that gains the head first computes what the fixed mix gave.
+pub const GUIDE_MIX_INIT_BIAS: f32 = 0.0;
+
 /// A blend-weight head (one channel, before the sigmoid) with small weights and a bias of
 /// [`BLEND_INIT_BIAS`].
 fn blend_head(cin: usize, device: &Device) -> Conv2d {
@@ -85,6 +91,9 @@ pub struct RaNet {
     blend_heads: Vec<Conv2d>,
     /// With `guide_blend`: one per-frame head of the guide-blend weight β (before the sigmoid).
     guide_heads: Vec<Conv2d>,
+    /// With `guide_mix_head`: one head on the centre frame's features of the guide mix weight
+    /// `w` (before the sigmoid).
+    mix_heads: Vec<Conv2d>,
 }
 
 /// tKPCN (Vogels et al. 2018): per-frame spatial kernels, then a temporal kernel over the
@@ -125,6 +134,17 @@ pub struct Denoiser {
     pub net: Network,
     /// Its description.
     pub config: NetConfig,
+}
+
+/// What a guided network predicts besides its kernels.
+#[derive(Clone, Debug, Default)]
+pub struct GuideWeights {
+    /// β of the guide blend per frame and pixel, `[B, T, 1, H, W]`
+    /// ([`crate::model::guide_blend::GuideBlend`]); `None` without the blend.
+    pub blend: Option<Tensor<5>>,
+    /// `w` of the learned guide mix per pixel, `[B, 1, H, W]`
+    /// ([`NetConfig::guide_mix_head`]); `None` without it.
+    pub mix: Option<Tensor<4>>,
 }
 
 /// Kernels predicted for a batch of windows.
@@ -176,12 +196,18 @@ impl Denoiser {
                     })
                     .into_iter()
                     .collect();
+                let mix_heads = config
+                    .guide_mix_head
+                    .then(|| blend_head_with(backbone.out_channels(), GUIDE_MIX_INIT_BIAS, device))
+                    .into_iter()
+                    .collect();
                 Network::Ra(RaNet {
                     backbone,
                     head,
                     coarse_heads,
                     blend_heads,
                     guide_heads,
+                    mix_heads,
                 })
             }
             Arch::Tkpcn => {
@@ -269,6 +295,38 @@ impl Denoiser {
         Ok(self)
     }
 
+    /// The same network with the learned guide mix on or off (`mix`): a new mix head starts at
+    /// [`GUIDE_MIX_INIT_BIAS`], the fixed mix's weight, so a fine-tune that adds it starts from
+    /// what the model it grows gave with the fixed mix. Only the RA network mixes, and only with
+    /// a guide in its inputs.
+    pub fn with_guide_mix_head(mut self, mix: bool, device: &Device) -> Result<Self, String> {
+        let Network::Ra(n) = &mut self.net else {
+            return Err("only arch = \"ra\" has the learned guide mix".into());
+        };
+        if mix && !self.config.inputs.guide {
+            return Err("the learned guide mix needs [inputs] guide = true".into());
+        }
+        if !mix {
+            n.mix_heads.clear();
+        } else if n.mix_heads.is_empty() {
+            let c = n.backbone.out_channels();
+            n.mix_heads
+                .push(blend_head_with(c, GUIDE_MIX_INIT_BIAS, device));
+        }
+        self.config.guide_mix_head = mix;
+        Ok(self)
+    }
+
+    /// Replaces the learned guide mix's head (tests: a head far from its start, whose weights
+    /// vary across the frame).
+    #[cfg(test)]
+    pub(crate) fn set_guide_mix_head(&mut self, head: Conv2d) {
+        let Network::Ra(n) = &mut self.net else {
+            panic!("only the RA network has the learned guide mix");
+        };
+        n.mix_heads = vec![head];
+    }
+
     /// The same network reading the input features `inputs`: the first layer gains (or drops)
     /// the channels that differ, new ones with zero weights, so the grown network first
     /// computes what the old one did on the features both share. A fine-tune that adds the
@@ -333,6 +391,9 @@ impl Denoiser {
                 }
                 for h in &n.guide_heads {
                     v.push(("guide_blend".into(), h.weight.val()));
+                }
+                for h in &n.mix_heads {
+                    v.push(("guide_mix".into(), h.weight.val()));
                 }
                 v
             }
@@ -495,9 +556,9 @@ impl Denoiser {
         self.predict_guided(input, t).0
     }
 
-    /// [`Denoiser::predict`], and for a network with the guide blend its weights β per frame
-    /// and pixel, `[B, T, 1, H, W]` ([`crate::model::guide_blend::GuideBlend`]).
-    pub fn predict_guided(&self, input: Tensor<5>, t: f32) -> (Prediction, Option<Tensor<5>>) {
+    /// [`Denoiser::predict`], and for a guided network the weights of its guide blend and of its
+    /// learned guide mix.
+    pub fn predict_guided(&self, input: Tensor<5>, t: f32) -> (Prediction, GuideWeights) {
         timed(Stage::Heads, || self.predict_untimed(input, t, None))
     }
 
@@ -509,7 +570,7 @@ impl Denoiser {
         input: Tensor<5>,
         stem: Tensor<5>,
         t: f32,
-    ) -> (Prediction, Option<Tensor<5>>) {
+    ) -> (Prediction, GuideWeights) {
         timed(Stage::Heads, || self.predict_untimed(input, t, Some(stem)))
     }
 
@@ -541,19 +602,25 @@ impl Denoiser {
         })
     }
 
-    /// β of the guide blend from per-frame features `[B·T, C, H', W']` (cropped to `h × w`).
-    fn guide_weights(
-        n: &RaNet,
-        feats: &Tensor<4>,
-        b: usize,
-        h: usize,
-        w: usize,
-    ) -> Option<Tensor<5>> {
-        let head = n.guide_heads.first()?;
-        let beta = sigmoid(conv2d(head, feats.clone(), false));
-        let [bt, _, _, _] = beta.dims();
-        let beta = beta.slice([0..bt, 0..1, 0..h, 0..w]);
-        Some(beta.reshape([b, bt / b, 1, h, w]))
+    /// β of the guide blend and `w` of the learned guide mix from per-frame features
+    /// `[B·T, C, H', W']` (cropped to `h × w`), where the network has them.
+    fn guide_weights(n: &RaNet, feats: &Tensor<4>, b: usize, h: usize, w: usize) -> GuideWeights {
+        let [bt, fc, hp, wp] = feats.dims();
+        let blend = n.guide_heads.first().map(|head| {
+            let beta = sigmoid(conv2d(head, feats.clone(), false));
+            let beta = beta.slice([0..bt, 0..1, 0..h, 0..w]);
+            beta.reshape([b, bt / b, 1, h, w])
+        });
+        let mix = n.mix_heads.first().map(|head| {
+            let frames = bt / b;
+            let centre = feats
+                .clone()
+                .reshape([b, frames, fc, hp, wp])
+                .narrow(1, frames / 2, 1)
+                .reshape([b, fc, hp, wp]);
+            sigmoid(conv2d(head, centre, false)).slice([0..b, 0..1, 0..h, 0..w])
+        });
+        GuideWeights { blend, mix }
     }
 
     fn predict_untimed(
@@ -561,7 +628,7 @@ impl Denoiser {
         input: Tensor<5>,
         t: f32,
         stem: Option<Tensor<5>>,
-    ) -> (Prediction, Option<Tensor<5>>) {
+    ) -> (Prediction, GuideWeights) {
         let [b, frames, c, h, w] = input.dims();
         assert_eq!(
             frames, self.config.frames,
@@ -582,7 +649,7 @@ impl Denoiser {
             Network::Ra(n) if self.config.scales() == 1 => {
                 let x = input.reshape([b * frames, c, h, w]);
                 let feats = self.backbone_features(n, x, stem, (h, w));
-                let beta = Self::guide_weights(n, &feats, b, h, w);
+                let guides = Self::guide_weights(n, &feats, b, h, w);
                 let raw = conv2d(&n.head, feats, false).reshape([b, frames * k2, h, w]);
                 let weights = eta(raw, t, act, centre * k2 + k2 / 2);
                 (
@@ -591,7 +658,7 @@ impl Denoiser {
                         frames,
                         size: k,
                     }),
-                    beta,
+                    guides,
                 )
             }
             Network::Ra(n) => {
@@ -599,7 +666,7 @@ impl Denoiser {
                 let padded = padded_size(h, w, scales);
                 let x = input.reshape([b * frames, c, h, w]);
                 let mut feats = self.backbone_features(n, x, stem, padded);
-                let beta = Self::guide_weights(n, &feats, b, h, w);
+                let guides = Self::guide_weights(n, &feats, b, h, w);
                 let mut kernels = Vec::with_capacity(scales);
                 let mut blend = Vec::with_capacity(scales - 1);
                 for s in 0..scales {
@@ -633,7 +700,7 @@ impl Denoiser {
                         blend,
                         size: (h, w),
                     }),
-                    beta,
+                    guides,
                 )
             }
             Network::Spatial(n) => {
@@ -645,7 +712,7 @@ impl Denoiser {
                         frames: 1,
                         size: k,
                     }),
-                    None,
+                    GuideWeights::default(),
                 )
             }
             Network::Tkpcn(n) => {
@@ -669,7 +736,7 @@ impl Denoiser {
                             size: k,
                         },
                     },
-                    None,
+                    GuideWeights::default(),
                 )
             }
         }

@@ -5,6 +5,7 @@ use burn::tensor::Tensor;
 use serde::{Deserialize, Serialize};
 
 use crate::model::demod::Demodulation;
+use crate::model::learned_mix::LearnedMix;
 use crate::model::Prediction;
 use crate::train::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
 use crate::train::loss::{l1, smape};
@@ -130,13 +131,15 @@ pub fn loss_subsets(frames: usize) -> Vec<Vec<bool>> {
 
 /// The loss of a prediction on the window's values against the centre target. With a
 /// `demod`ulation the kernels filter the demodulated values and every estimate is remodulated
-/// before it meets the target.
+/// before it meets the target; with a learned guide `mix` every estimate is then mixed with the
+/// centre frame's guide, as inference mixes the result.
 #[allow(clippy::too_many_arguments)]
 pub fn objective(
     pred: &Prediction,
     values: Tensor<5>,
     target: Tensor<4>,
     demod: Option<&Demodulation>,
+    mix: Option<&LearnedMix>,
     mode: LossMode,
     loss: &LossFn,
     full_weight: f32,
@@ -149,6 +152,10 @@ pub fn objective(
     let l = |x: Tensor<4>| {
         let x = match demod {
             Some(d) => d.remodulate(x),
+            None => x,
+        };
+        let x = match mix {
+            Some(m) => m.apply(x),
             None => x,
         };
         loss.eval(x, target.clone())
@@ -299,6 +306,7 @@ mod tests {
             values.clone(),
             target.clone(),
             None,
+            None,
             LossMode::Temporal,
             &LossFn::Pixel(PixelLoss::L1),
             0.0,
@@ -312,6 +320,7 @@ mod tests {
             values.clone(),
             target.clone(),
             None,
+            None,
             LossMode::Spatial,
             &LossFn::Pixel(PixelLoss::L1),
             0.0,
@@ -321,8 +330,9 @@ mod tests {
         assert!((spatial - 2.0).abs() < 1e-5); // 0.2 + 0.8 + 0.6 + 0.4 = 2
         let with_full = objective(
             &pred,
-            values,
-            target,
+            values.clone(),
+            target.clone(),
+            None,
             None,
             LossMode::Temporal,
             &LossFn::Pixel(PixelLoss::L1),
@@ -331,5 +341,30 @@ mod tests {
         )
         .into_scalar::<f32>();
         assert!((with_full - 7.0).abs() < 1e-5);
+        // a learned mix reaches every term: the guide alone (w = 1) equals the target here
+        let guide_only = LearnedMix {
+            weight: Tensor::ones([1, 1, 1, 1], &d),
+            guide: Tensor::zeros([1, 1, 1, 1], &d),
+        };
+        let half = LearnedMix {
+            weight: Tensor::full([1, 1, 1, 1], 0.5, &d),
+            guide: Tensor::zeros([1, 1, 1, 1], &d),
+        };
+        let loss_with = |mix: &LearnedMix| {
+            objective(
+                &pred,
+                values.clone(),
+                target.clone(),
+                None,
+                Some(mix),
+                LossMode::Temporal,
+                &LossFn::Pixel(PixelLoss::L1),
+                0.5,
+                5,
+            )
+            .into_scalar::<f32>()
+        };
+        assert!(loss_with(&guide_only).abs() < 1e-6);
+        assert!((loss_with(&half) - 3.5).abs() < 1e-5);
     }
 }

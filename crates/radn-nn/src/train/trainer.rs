@@ -17,6 +17,7 @@ use crate::error::{NnError, Result};
 use crate::infer::input::network_features;
 use crate::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
 use crate::model::demod::Demodulation;
+use crate::model::learned_mix::LearnedMix;
 use crate::model::store;
 use crate::model::Denoiser;
 use crate::train::dataset::{SplitMix, Tile, TileDataset, INPUT_LEVELS};
@@ -221,6 +222,8 @@ pub struct Batch {
     pub values: Tensor<5>,
     /// Centre target.
     pub target: Tensor<4>,
+    /// The centre frame's guide (linear colour) `[B, 3, S, S]`, for a network that reads one.
+    pub guide: Option<Tensor<4>>,
 }
 
 /// Crops and stacks tiles with their chosen (input, target) levels, with the input features
@@ -236,6 +239,7 @@ pub fn make_batch(
 ) -> Batch {
     let b = tiles.len();
     let (mut f, mut v, mut t) = (Vec::new(), Vec::new(), Vec::new());
+    let mut centre_guides = Vec::new();
     let cut = |data: &[f32], planes: usize, x0: usize, y0: usize, out: &mut Vec<f32>| {
         for p in 0..planes {
             for y in y0..y0 + crop {
@@ -262,6 +266,8 @@ pub fn make_batch(
                 .as_ref()
                 .expect("a guided network trains on guided tiles (checked by Trainer::new)");
             cut(stored, frames * 3, *x0, *y0, &mut g);
+            let centre = frames / 2 * 3 * crop * crop;
+            centre_guides.extend_from_slice(&g[centre..centre + 3 * crop * crop]);
             g
         });
         let exposure = match tl.exposure[*input] {
@@ -294,6 +300,9 @@ pub fn make_batch(
         ),
         values: Tensor::from_data(TensorData::new(v, [b, frames, 3, crop, crop]), device),
         target: Tensor::from_data(TensorData::new(t, [b, 3, crop, crop]), device),
+        guide: inputs
+            .guide
+            .then(|| Tensor::from_data(TensorData::new(centre_guides, [b, 3, crop, crop]), device)),
     }
 }
 
@@ -312,6 +321,17 @@ fn blend_values(
         }
         None => values,
     }
+}
+
+/// The learned guide mix of a batch, for a network with the head (`weight`); the batch then has
+/// its centre guides.
+fn learned_mix(weight: Option<Tensor<4>>, guide: &Option<Tensor<4>>) -> Option<LearnedMix> {
+    weight.map(|weight| LearnedMix {
+        weight,
+        guide: guide
+            .clone()
+            .expect("a network with the guide mix reads a guide: its batches carry one"),
+    })
 }
 
 /// A network configured as `config` holding the weights of the model file `path`, refused when
@@ -359,6 +379,13 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
                 path: path.to_path_buf(),
                 detail,
             })?;
+    }
+    if d.config.guide_mix_head != config.guide_mix_head {
+        // a fine-tune may add the learned guide mix: its head starts at the fixed mix's weight
+        d.config.inputs = config.inputs.clone();
+        d = d
+            .with_guide_mix_head(config.guide_mix_head, device)
+            .map_err(load_err)?;
     }
     if d.config.scales() != config.scales() {
         // a fine-tune may add (or drop) kernel scales: the new heads start from the old ones
@@ -585,13 +612,15 @@ impl Trainer {
         let b = make_batch(&tiles, frames, tile, crop, &inputs, &self.device);
         let thr = self.denoiser.config.default_threshold();
         let demod = self.demodulation(&b.features);
-        let (pred, beta) = self.denoiser.predict_guided(b.features.clone(), thr);
-        let values = blend_values(&self.denoiser.config, &b.features, beta, b.values);
+        let (pred, guides) = self.denoiser.predict_guided(b.features.clone(), thr);
+        let mix = learned_mix(guides.mix, &b.guide);
+        let values = blend_values(&self.denoiser.config, &b.features, guides.blend, b.values);
         let loss = objective(
             &pred,
             values,
             b.target,
             demod.as_ref(),
+            mix.as_ref(),
             self.config.mode,
             &self.loss_fn,
             self.config.full_weight,
@@ -657,13 +686,15 @@ impl Trainer {
                 &plain,
             );
             let demod = self.demodulation(&b.features);
-            let (pred, beta) = denoiser.predict_guided(b.features.clone(), thr);
-            let values = blend_values(&denoiser.config, &b.features, beta, b.values);
+            let (pred, guides) = denoiser.predict_guided(b.features.clone(), thr);
+            let mix = learned_mix(guides.mix, &b.guide);
+            let values = blend_values(&denoiser.config, &b.features, guides.blend, b.values);
             loss += objective(
                 &pred,
                 values.clone(),
                 b.target.clone(),
                 demod.as_ref(),
+                mix.as_ref(),
                 self.config.mode,
                 &self.loss_fn,
                 self.config.full_weight,
@@ -671,6 +702,10 @@ impl Trainer {
             )
             .into_scalar::<f32>() as f64;
             let out = crate::model::demod::filter(&pred, values, demod.as_ref());
+            let out = match &mix {
+                Some(m) => m.apply(out),
+                None => out,
+            };
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)

@@ -88,9 +88,10 @@ pub struct Args {
     /// Guided models: mix the result with each frame's own guide, (1 − W)·result + W·guide on
     /// the beauty (AOVs get the beauty's per-pixel gain, so they still sum to it). The guide
     /// keeps detail the window's kernels average away; the kernels remove per-frame error the
-    /// guide keeps. `auto`: 0.5 for a guided model (chosen on the detail validation scenes:
-    /// docs/guided.md, "Guide mix"), nothing for others; `off` (or 0): the network's result
-    /// alone; 1: the guide alone.
+    /// guide keeps. `auto`: the weight per pixel a model with a learned guide mix predicts, 0.5
+    /// for other guided models (chosen on the detail validation scenes: docs/guided.md, "Guide
+    /// mix"), nothing for others; `off` (or 0): the network's result alone; W: that weight
+    /// everywhere (1: the guide alone).
     #[arg(long, value_name = "auto|off|W", default_value = "auto", value_parser = parse_guide_mix)]
     pub guide_mix: GuideMixChoice,
     /// With --guide-mix: which guide the result is mixed with. `centre`: the frame's own (its
@@ -310,6 +311,8 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         }
         GuideMixChoice::Weight(w) => w,
     };
+    // a number (or off) given on the command line replaces a learned mix
+    n.guide_mix_learned = matches!(a.guide_mix, GuideMixChoice::Auto);
     n.guide_mix_outliers = (guided && a.guide_mix_outliers).then_some(DEFAULT_OUTLIER_RAMP);
     Ok(n)
 }
