@@ -326,27 +326,34 @@ impl NetworkDenoiser {
         let eps = self.denoiser.config.demodulate;
         let inputs = &self.denoiser.config.inputs;
         let learned = self.guide_mix_learned && self.denoiser.config.guide_mix_head;
-        let out = self.run_tiled(
-            win,
-            stems,
-            scales,
-            rows,
-            values,
-            chans,
-            |p, guides, v, x| {
-                let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
-                let v = match guides.blend {
-                    Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
-                    None => v,
-                };
-                let filtered = filter(p, v, demod.as_ref());
-                match guides.mix {
-                    // the mix weights travel as one more channel of the tiles' result
-                    Some(w) if learned => Tensor::cat(vec![filtered, w], 1),
-                    _ => filtered,
+        let inv_exposure = if inputs.exposure {
+            1.0 / scales.exposure
+        } else {
+            1.0
+        };
+        let out = self.run_tiled(win, stems, scales, rows, values, chans, |p, guides, v, x| {
+            let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
+            let v = match guides.blend {
+                Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
+                None => v,
+            };
+            let filtered = filter(p, v, demod.as_ref());
+            if !learned {
+                return filtered;
+            }
+            // the mix weights travel as one more channel of the tiles' result
+            let w = match (guides.mix, guides.mix_features) {
+                (Some(w), _) => w,
+                (None, Some(features)) => {
+                    let colour = filtered.clone().narrow(1, 0, 3).clamp_min(0.0);
+                    let log = (colour * inv_exposure + 1.0).log();
+                    let guide_log = self.denoiser.centre_guide_log(x);
+                    self.denoiser.mix_weight_of_result(features, log, guide_log)
                 }
-            },
-        );
+                (None, None) => unreachable!("a network with the guide mix predicts its weights"),
+            };
+            Tensor::cat(vec![filtered, w], 1)
+        });
         if learned {
             let w = out.select_channels(chans, 1);
             (out.select_channels(0, chans), Some(w))
@@ -1031,15 +1038,21 @@ mod tests {
 
     #[test]
     fn a_learned_guide_mix_weighs_each_pixel_and_tiles_equal_the_whole_frame() {
+        // both heads: on the features alone, and reading the kernels' result and the guide
+        for reads_result in [false, true] {
+            learned_mix_weighs_each_pixel(reads_result);
+        }
+    }
+
+    fn learned_mix_weighs_each_pixel(reads_result: bool) {
         let device = Device::flex();
         let shipped = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../models/guided-lean.safetensors");
-        let mut d = crate::model::store::load(&shipped, &device)
-            .unwrap()
-            .with_guide_mix_head(true, &device)
-            .unwrap();
+        let mut d = crate::model::store::load(&shipped, &device).unwrap();
+        d.config.guide_mix_reads_result = reads_result;
+        let mut d = d.with_guide_mix_head(true, &device).unwrap();
         // a head far from its start (w = 0.5 everywhere): weights that vary over the frame
-        let c = d.feature_channels();
+        let c = d.feature_channels() + if reads_result { 9 } else { 0 };
         let mut head = burn::nn::conv::Conv2dConfig::new([c, 1], [3, 3])
             .with_padding(burn::nn::PaddingConfig2d::Same)
             .with_initializer(burn::nn::Initializer::Normal {
@@ -1093,7 +1106,10 @@ mod tests {
         let (lo, hi) = weights
             .iter()
             .fold((1.0f32, 0.0f32), |(lo, hi), &x| (lo.min(x), hi.max(x)));
-        assert!(hi - lo > 0.3, "the weights vary: {lo} to {hi}");
+        assert!(
+            hi - lo > 0.3,
+            "reads result {reads_result}: the weights vary: {lo} to {hi}"
+        );
         // tile by tile, the weights travel with the kernels' result
         n.guide_mix_learned = true;
         for tile in [32usize, 16] {

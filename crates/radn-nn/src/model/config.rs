@@ -116,6 +116,12 @@ pub struct NetConfig {
     /// (per-frame error). Applied as a per-pixel gain, so AOVs keep summing to the beauty.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub guide_mix_head: bool,
+    /// With `guide_mix_head`: the head also reads the kernels' result and the guide of the
+    /// centre frame (log colour, as the inputs are, and their absolute difference), so it can
+    /// see where the kernels lost or spread what the guide has — a learned outlier ramp. Without
+    /// it the head reads the backbone's features alone.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub guide_mix_reads_result: bool,
     /// Frame-local stem (issue 20): the layers before the first RA block read only what a
     /// frame holds itself (colour, albedo, normal, depth, guide, each frame normalised by its
     /// own exposure and depth at inference), and the window's own inputs (alignment confidence,
@@ -178,6 +184,11 @@ impl InputConfig {
     /// True for the base features only (models from before these options).
     pub fn is_base(&self) -> bool {
         !self.exposure && !self.noise && !self.guide
+    }
+
+    /// Where a frame's guide starts among its channels (with `guide`).
+    pub fn guide_offset(&self) -> usize {
+        INPUT_CHANNELS + usize::from(self.noise)
     }
 
     /// Channels per frame the network reads.
@@ -309,6 +320,9 @@ impl NetConfig {
         }
         if self.guide_mix_head && !(self.inputs.guide && self.arch == Arch::Ra) {
             return bad("guide_mix_head needs arch = \"ra\" and [inputs] guide = true".into());
+        }
+        if self.guide_mix_reads_result && !self.guide_mix_head {
+            return bad("guide_mix_reads_result needs guide_mix_head = true".into());
         }
         if let Some(eps) = self.demodulate {
             if !(eps.is_finite() && eps > 0.0) {

@@ -6,20 +6,59 @@
 
 use burn::tensor::Tensor;
 
+use crate::model::Denoiser;
+
 /// The mix of one batch: weights and guides of the centre frames.
 #[derive(Clone, Debug)]
-pub struct LearnedMix {
-    /// `w` per pixel, `[B, 1, H, W]`, in (0, 1).
-    pub weight: Tensor<4>,
+pub struct LearnedMix<'a> {
+    /// Where `w` comes from.
+    pub weight: MixWeights<'a>,
     /// The centre frame's guide (linear colour, as rendered), `[B, 3, H, W]`.
     pub guide: Tensor<4>,
 }
 
-impl LearnedMix {
+/// The weights of a [`LearnedMix`].
+#[derive(Clone, Debug)]
+pub enum MixWeights<'a> {
+    /// `w` per pixel, `[B, 1, H, W]`, in (0, 1), predicted from the features alone.
+    Given(Tensor<4>),
+    /// `w` from the result being mixed ([`crate::model::config::NetConfig::guide_mix_reads_result`]):
+    /// each term of the loss mixes its own result by weights computed from it.
+    OfResult {
+        /// The network whose head computes them.
+        denoiser: &'a Denoiser,
+        /// The centre frame's features ([`crate::model::GuideWeights::mix_features`]).
+        features: Tensor<4>,
+        /// The centre frame's guide as the network reads it ([`Denoiser::centre_guide_log`]).
+        guide_log: Tensor<4>,
+        /// Per batch item, the reciprocal of the exposure the inputs were divided by
+        /// (`[B, 1, 1, 1]`; 1 without exposure normalisation).
+        inv_exposure: Tensor<4>,
+    },
+}
+
+impl LearnedMix<'_> {
+    /// The weights for a colour result `r` (`[B, 3, H, W]`).
+    pub fn weights(&self, result: &Tensor<4>) -> Tensor<4> {
+        match &self.weight {
+            MixWeights::Given(w) => w.clone(),
+            MixWeights::OfResult {
+                denoiser,
+                features,
+                guide_log,
+                inv_exposure,
+            } => {
+                let scale = inv_exposure.clone().expand(result.dims());
+                let log = (result.clone().clamp_min(0.0) * scale + 1.0).log();
+                denoiser.mix_weight_of_result(features.clone(), log, guide_log.clone())
+            }
+        }
+    }
+
     /// `(1 − w)·r + w·g` for a colour result `r` (`[B, 3, H, W]`, or as many channels as the
     /// guide has).
     pub fn apply(&self, result: Tensor<4>) -> Tensor<4> {
-        let w = self.weight.clone().repeat_dim(1, result.dims()[1]);
+        let w = self.weights(&result).repeat_dim(1, result.dims()[1]);
         result * (w.clone().neg() + 1.0) + w * self.guide.clone()
     }
 }
@@ -34,7 +73,7 @@ mod tests {
         let d = Device::default();
         let t = |v: Vec<f32>, c| Tensor::<4>::from_data(TensorData::new(v, [1, c, 1, 2]), &d);
         let mix = LearnedMix {
-            weight: t(vec![0.25, 1.0], 1),
+            weight: MixWeights::Given(t(vec![0.25, 1.0], 1)),
             guide: t(vec![2.0, 4.0, 2.0, 4.0, 2.0, 4.0], 3),
         };
         let out = mix

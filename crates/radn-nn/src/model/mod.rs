@@ -61,6 +61,20 @@ pub const GUIDE_BLEND_INIT_BIAS: f32 = -4.0;
 /// that gains the head first computes what the fixed mix gave.
 pub const GUIDE_MIX_INIT_BIAS: f32 = 0.0;
 
+/// The scale of the learned guide mix head's difference input: `|ln(1 + r) − ln(1 + g)|` is
+/// multiplied by it, so a difference of 0.05 (where the outlier ramp of
+/// [`crate::infer::guide_mix`] starts to act) reads as 1. Its weights then need to move by about
+/// one unit, not twenty, before the head tells outliers from detail: a fine-tune of a few hundred
+/// steps at 2e-4 moves a weight by at most about 0.1.
+pub const MIX_DIFF_SCALE: f32 = 20.0;
+
+/// Input channels of the learned guide mix's head: the backbone's features, and with
+/// [`NetConfig::guide_mix_reads_result`] the result's and the guide's log colour and their
+/// absolute difference.
+fn mix_head_inputs(config: &NetConfig, features: usize) -> usize {
+    features + if config.guide_mix_reads_result { 9 } else { 0 }
+}
+
 /// A blend-weight head (one channel, before the sigmoid) with small weights and a bias of
 /// [`BLEND_INIT_BIAS`].
 fn blend_head(cin: usize, device: &Device) -> Conv2d {
@@ -143,8 +157,12 @@ pub struct GuideWeights {
     /// ([`crate::model::guide_blend::GuideBlend`]); `None` without the blend.
     pub blend: Option<Tensor<5>>,
     /// `w` of the learned guide mix per pixel, `[B, 1, H, W]`
-    /// ([`NetConfig::guide_mix_head`]); `None` without it.
+    /// ([`NetConfig::guide_mix_head`]); `None` without it, and for a head that reads the
+    /// kernels' result, which gives [`GuideWeights::mix_features`] instead.
     pub mix: Option<Tensor<4>>,
+    /// For a learned guide mix that reads the kernels' result: the centre frame's features
+    /// `[B, C, H, W]` its head reads with them ([`Denoiser::mix_weight_of_result`]).
+    pub mix_features: Option<Tensor<4>>,
 }
 
 /// Kernels predicted for a batch of windows.
@@ -198,7 +216,13 @@ impl Denoiser {
                     .collect();
                 let mix_heads = config
                     .guide_mix_head
-                    .then(|| blend_head_with(backbone.out_channels(), GUIDE_MIX_INIT_BIAS, device))
+                    .then(|| {
+                        blend_head_with(
+                            mix_head_inputs(&config, backbone.out_channels()),
+                            GUIDE_MIX_INIT_BIAS,
+                            device,
+                        )
+                    })
                     .into_iter()
                     .collect();
                 Network::Ra(RaNet {
@@ -306,15 +330,48 @@ impl Denoiser {
         if mix && !self.config.inputs.guide {
             return Err("the learned guide mix needs [inputs] guide = true".into());
         }
+        self.config.guide_mix_head = mix;
+        let cin = mix_head_inputs(&self.config, n.backbone.out_channels());
+        let fits = |h: &Conv2d| h.weight.dims()[1] == cin;
         if !mix {
             n.mix_heads.clear();
-        } else if n.mix_heads.is_empty() {
-            let c = n.backbone.out_channels();
-            n.mix_heads
-                .push(blend_head_with(c, GUIDE_MIX_INIT_BIAS, device));
+        } else if !n.mix_heads.first().is_some_and(fits) {
+            n.mix_heads = vec![blend_head_with(cin, GUIDE_MIX_INIT_BIAS, device)];
         }
-        self.config.guide_mix_head = mix;
         Ok(self)
+    }
+
+    /// The learned guide mix's weight `[B, 1, H, W]` for a head that reads the kernels' result
+    /// ([`NetConfig::guide_mix_reads_result`]): from the centre frame's features
+    /// ([`GuideWeights::mix_features`]), the result's log colour `ln(1 + max(0, r)/exposure)`
+    /// and the guide's (from the input, [`Denoiser::centre_guide_log`]).
+    pub fn mix_weight_of_result(
+        &self,
+        features: Tensor<4>,
+        result_log: Tensor<4>,
+        guide_log: Tensor<4>,
+    ) -> Tensor<4> {
+        let Network::Ra(n) = &self.net else {
+            panic!("only the RA network has the learned guide mix");
+        };
+        let head = n.mix_heads.first().expect("a learned guide mix head");
+        let diff = (result_log.clone() - guide_log.clone()).abs() * MIX_DIFF_SCALE;
+        sigmoid(conv2d(
+            head,
+            Tensor::cat(vec![features, result_log, guide_log, diff], 1),
+            false,
+        ))
+    }
+
+    /// The centre frame's guide as the network reads it (log colour, `[B, 3, H, W]`) from its
+    /// input `[B, T, C, H, W]`.
+    pub fn centre_guide_log(&self, input: &Tensor<5>) -> Tensor<4> {
+        let [b, t, _, h, w] = input.dims();
+        input
+            .clone()
+            .narrow(1, t / 2, 1)
+            .narrow(2, self.config.inputs.guide_offset(), 3)
+            .reshape([b, 3, h, w])
     }
 
     /// Replaces the learned guide mix's head (tests: a head far from its start, whose weights
@@ -604,23 +661,41 @@ impl Denoiser {
 
     /// β of the guide blend and `w` of the learned guide mix from per-frame features
     /// `[B·T, C, H', W']` (cropped to `h × w`), where the network has them.
-    fn guide_weights(n: &RaNet, feats: &Tensor<4>, b: usize, h: usize, w: usize) -> GuideWeights {
+    fn guide_weights(
+        &self,
+        n: &RaNet,
+        feats: &Tensor<4>,
+        b: usize,
+        h: usize,
+        w: usize,
+    ) -> GuideWeights {
         let [bt, fc, hp, wp] = feats.dims();
         let blend = n.guide_heads.first().map(|head| {
             let beta = sigmoid(conv2d(head, feats.clone(), false));
             let beta = beta.slice([0..bt, 0..1, 0..h, 0..w]);
             beta.reshape([b, bt / b, 1, h, w])
         });
-        let mix = n.mix_heads.first().map(|head| {
+        let centre = || {
             let frames = bt / b;
-            let centre = feats
+            feats
                 .clone()
                 .reshape([b, frames, fc, hp, wp])
                 .narrow(1, frames / 2, 1)
-                .reshape([b, fc, hp, wp]);
-            sigmoid(conv2d(head, centre, false)).slice([0..b, 0..1, 0..h, 0..w])
-        });
-        GuideWeights { blend, mix }
+                .reshape([b, fc, hp, wp])
+        };
+        let reads_result = self.config.guide_mix_reads_result;
+        let mix = n
+            .mix_heads
+            .first()
+            .filter(|_| !reads_result)
+            .map(|head| sigmoid(conv2d(head, centre(), false)).slice([0..b, 0..1, 0..h, 0..w]));
+        let mix_features = (reads_result && !n.mix_heads.is_empty())
+            .then(|| centre().slice([0..b, 0..fc, 0..h, 0..w]));
+        GuideWeights {
+            blend,
+            mix,
+            mix_features,
+        }
     }
 
     fn predict_untimed(
@@ -649,7 +724,7 @@ impl Denoiser {
             Network::Ra(n) if self.config.scales() == 1 => {
                 let x = input.reshape([b * frames, c, h, w]);
                 let feats = self.backbone_features(n, x, stem, (h, w));
-                let guides = Self::guide_weights(n, &feats, b, h, w);
+                let guides = self.guide_weights(n, &feats, b, h, w);
                 let raw = conv2d(&n.head, feats, false).reshape([b, frames * k2, h, w]);
                 let weights = eta(raw, t, act, centre * k2 + k2 / 2);
                 (
@@ -666,7 +741,7 @@ impl Denoiser {
                 let padded = padded_size(h, w, scales);
                 let x = input.reshape([b * frames, c, h, w]);
                 let mut feats = self.backbone_features(n, x, stem, padded);
-                let guides = Self::guide_weights(n, &feats, b, h, w);
+                let guides = self.guide_weights(n, &feats, b, h, w);
                 let mut kernels = Vec::with_capacity(scales);
                 let mut blend = Vec::with_capacity(scales - 1);
                 for s in 0..scales {

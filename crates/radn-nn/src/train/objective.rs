@@ -139,7 +139,7 @@ pub fn objective(
     values: Tensor<5>,
     target: Tensor<4>,
     demod: Option<&Demodulation>,
-    mix: Option<&LearnedMix>,
+    mix: Option<&LearnedMix<'_>>,
     mode: LossMode,
     loss: &LossFn,
     full_weight: f32,
@@ -187,6 +187,7 @@ pub fn objective(
 mod tests {
     use super::*;
     use crate::model::kernel::Kernels;
+    use crate::model::learned_mix::MixWeights;
     use burn::tensor::{Device, TensorData};
 
     #[test]
@@ -343,11 +344,11 @@ mod tests {
         assert!((with_full - 7.0).abs() < 1e-5);
         // a learned mix reaches every term: the guide alone (w = 1) equals the target here
         let guide_only = LearnedMix {
-            weight: Tensor::ones([1, 1, 1, 1], &d),
+            weight: MixWeights::Given(Tensor::ones([1, 1, 1, 1], &d)),
             guide: Tensor::zeros([1, 1, 1, 1], &d),
         };
         let half = LearnedMix {
-            weight: Tensor::full([1, 1, 1, 1], 0.5, &d),
+            weight: MixWeights::Given(Tensor::full([1, 1, 1, 1], 0.5, &d)),
             guide: Tensor::zeros([1, 1, 1, 1], &d),
         };
         let loss_with = |mix: &LearnedMix| {

@@ -17,9 +17,9 @@ use crate::error::{NnError, Result};
 use crate::infer::input::network_features;
 use crate::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
 use crate::model::demod::Demodulation;
-use crate::model::learned_mix::LearnedMix;
+use crate::model::learned_mix::{LearnedMix, MixWeights};
 use crate::model::store;
-use crate::model::Denoiser;
+use crate::model::{Denoiser, GuideWeights};
 use crate::train::dataset::{SplitMix, Tile, TileDataset, INPUT_LEVELS};
 use crate::train::layer_stats::{append_csv, gradient_norms, step_stats};
 use crate::train::objective::{objective, sample_pair, LossFn, LossMode, PairRule, PixelLoss};
@@ -224,6 +224,9 @@ pub struct Batch {
     pub target: Tensor<4>,
     /// The centre frame's guide (linear colour) `[B, 3, S, S]`, for a network that reads one.
     pub guide: Option<Tensor<4>>,
+    /// Per tile, the reciprocal of the exposure its colour features were divided by
+    /// (`[B, 1, 1, 1]`; 1 without exposure normalisation).
+    pub inv_exposure: Tensor<4>,
 }
 
 /// Crops and stacks tiles with their chosen (input, target) levels, with the input features
@@ -240,6 +243,7 @@ pub fn make_batch(
     let b = tiles.len();
     let (mut f, mut v, mut t) = (Vec::new(), Vec::new(), Vec::new());
     let mut centre_guides = Vec::new();
+    let mut inv_exposure = Vec::new();
     let cut = |data: &[f32], planes: usize, x0: usize, y0: usize, out: &mut Vec<f32>| {
         for p in 0..planes {
             for y in y0..y0 + crop {
@@ -275,6 +279,7 @@ pub fn make_batch(
             None if inputs.exposure => panic!("exposure normalisation needs format-2 tiles"),
             None => 1.0,
         };
+        inv_exposure.push(if inputs.exposure { 1.0 / exposure } else { 1.0 });
         f.extend(network_features(
             base,
             &colour,
@@ -303,6 +308,7 @@ pub fn make_batch(
         guide: inputs
             .guide
             .then(|| Tensor::from_data(TensorData::new(centre_guides, [b, 3, crop, crop]), device)),
+        inv_exposure: Tensor::from_data(TensorData::new(inv_exposure, [b, 1, 1, 1]), device),
     }
 }
 
@@ -323,12 +329,28 @@ fn blend_values(
     }
 }
 
-/// The learned guide mix of a batch, for a network with the head (`weight`); the batch then has
-/// its centre guides.
-fn learned_mix(weight: Option<Tensor<4>>, guide: &Option<Tensor<4>>) -> Option<LearnedMix> {
-    weight.map(|weight| LearnedMix {
+/// The learned guide mix of a batch `b`, for a network with the head (`guides` then hold its
+/// weights, or the features its head reads with the result); the batch then has its centre
+/// guides.
+fn learned_mix<'a>(
+    denoiser: &'a Denoiser,
+    guides: &GuideWeights,
+    b: &Batch,
+) -> Option<LearnedMix<'a>> {
+    let weight = match (&guides.mix, &guides.mix_features) {
+        (Some(w), _) => MixWeights::Given(w.clone()),
+        (None, Some(features)) => MixWeights::OfResult {
+            denoiser,
+            features: features.clone(),
+            guide_log: denoiser.centre_guide_log(&b.features),
+            inv_exposure: b.inv_exposure.clone(),
+        },
+        (None, None) => return None,
+    };
+    Some(LearnedMix {
         weight,
-        guide: guide
+        guide: b
+            .guide
             .clone()
             .expect("a network with the guide mix reads a guide: its batches carry one"),
     })
@@ -380,9 +402,12 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
                 detail,
             })?;
     }
-    if d.config.guide_mix_head != config.guide_mix_head {
+    if d.config.guide_mix_head != config.guide_mix_head
+        || d.config.guide_mix_reads_result != config.guide_mix_reads_result
+    {
         // a fine-tune may add the learned guide mix: its head starts at the fixed mix's weight
         d.config.inputs = config.inputs.clone();
+        d.config.guide_mix_reads_result = config.guide_mix_reads_result;
         d = d
             .with_guide_mix_head(config.guide_mix_head, device)
             .map_err(load_err)?;
@@ -613,8 +638,13 @@ impl Trainer {
         let thr = self.denoiser.config.default_threshold();
         let demod = self.demodulation(&b.features);
         let (pred, guides) = self.denoiser.predict_guided(b.features.clone(), thr);
-        let mix = learned_mix(guides.mix, &b.guide);
-        let values = blend_values(&self.denoiser.config, &b.features, guides.blend, b.values);
+        let mix = learned_mix(&self.denoiser, &guides, &b);
+        let values = blend_values(
+            &self.denoiser.config,
+            &b.features,
+            guides.blend,
+            b.values.clone(),
+        );
         let loss = objective(
             &pred,
             values,
@@ -687,8 +717,13 @@ impl Trainer {
             );
             let demod = self.demodulation(&b.features);
             let (pred, guides) = denoiser.predict_guided(b.features.clone(), thr);
-            let mix = learned_mix(guides.mix, &b.guide);
-            let values = blend_values(&denoiser.config, &b.features, guides.blend, b.values);
+            let mix = learned_mix(&denoiser, &guides, &b);
+            let values = blend_values(
+                &denoiser.config,
+                &b.features,
+                guides.blend,
+                b.values.clone(),
+            );
             loss += objective(
                 &pred,
                 values.clone(),
