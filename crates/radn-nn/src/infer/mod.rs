@@ -331,29 +331,39 @@ impl NetworkDenoiser {
         } else {
             1.0
         };
-        let out = self.run_tiled(win, stems, scales, rows, values, chans, |p, guides, v, x| {
-            let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
-            let v = match guides.blend {
-                Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
-                None => v,
-            };
-            let filtered = filter(p, v, demod.as_ref());
-            if !learned {
-                return filtered;
-            }
-            // the mix weights travel as one more channel of the tiles' result
-            let w = match (guides.mix, guides.mix_features) {
-                (Some(w), _) => w,
-                (None, Some(features)) => {
-                    let colour = filtered.clone().narrow(1, 0, 3).clamp_min(0.0);
-                    let log = (colour * inv_exposure + 1.0).log();
-                    let guide_log = self.denoiser.centre_guide_log(x);
-                    self.denoiser.mix_weight_of_result(features, log, guide_log)
+        let out = self.run_tiled(
+            win,
+            stems,
+            scales,
+            rows,
+            values,
+            chans,
+            |p, guides, v, x| {
+                let demod = eps.map(|eps| Demodulation::new(x, eps, rgb.clone(), chans));
+                let v = match guides.blend {
+                    Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
+                    None => v,
+                };
+                let filtered = filter(p, v, demod.as_ref());
+                if !learned {
+                    return filtered;
                 }
-                (None, None) => unreachable!("a network with the guide mix predicts its weights"),
-            };
-            Tensor::cat(vec![filtered, w], 1)
-        });
+                // the mix weights travel as one more channel of the tiles' result
+                let w = match (guides.mix, guides.mix_features) {
+                    (Some(w), _) => w,
+                    (None, Some(features)) => {
+                        let colour = filtered.clone().narrow(1, 0, 3).clamp_min(0.0);
+                        let log = (colour * inv_exposure + 1.0).log();
+                        let guide_log = self.denoiser.centre_guide_log(x);
+                        self.denoiser.mix_weight_of_result(features, log, guide_log)
+                    }
+                    (None, None) => {
+                        unreachable!("a network with the guide mix predicts its weights")
+                    }
+                };
+                Tensor::cat(vec![filtered, w], 1)
+            },
+        );
         if learned {
             let w = out.select_channels(chans, 1);
             (out.select_channels(0, chans), Some(w))

@@ -18,6 +18,8 @@ pub struct LearnedMix<'a> {
 }
 
 /// The weights of a [`LearnedMix`].
+// one value per batch, holding tensor handles: its size does not matter
+#[allow(clippy::large_enum_variant)]
 #[derive(Clone, Debug)]
 pub enum MixWeights<'a> {
     /// `w` per pixel, `[B, 1, H, W]`, in (0, 1), predicted from the features alone.
