@@ -18,10 +18,14 @@
 #   fur-val       model selection for fur: like detail-val (4 / 11 / 32 spp plus 64 and 128),
 #                 256-spp references of frames 3-5; with it, the first val-split scene with hair.
 #   fur-test      held aside: 4 / 11 / 32 spp, 512-spp references of frames 3-6.
+#   contact-train glass standing on a finely textured floor, lit to throw caustics
+#                 (radn_datagen/contact.py), rendered like fur-train.
+#   contact-val   model selection for it: 4 / 11 / 32 spp, 256-spp references of frames 3-5.
+#   contact-test  held aside: 4 / 11 / 32 spp, 512-spp references of frames 3-6.
 #   glass-val     model selection for caustics through glass: the first val-split scenes with at
 #                 least three glass objects (`--with-glass`), 4 / 11 / 32 spp, 256-spp references
 #                 of frames 3-5.
-# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=3 FUR_TEST=2 GLASS_VAL=2] tools/datagen/make_detail_dataset.sh [OUT]
+# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=3 FUR_TEST=2 GLASS_VAL=2 CONTACT_TRAIN=5 CONTACT_VAL=2 CONTACT_TEST=2] tools/datagen/make_detail_dataset.sh [OUT]
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/radn}"
@@ -47,3 +51,9 @@ $py -m radn_datagen dataset --split fur-test --scenes "${FUR_TEST:-2}" --frames 
     --reference-spp 512 --reference-frames 3-6 --half --out "$out/fur-test"
 $py -m radn_datagen dataset --split val --with-glass --scenes "${GLASS_VAL:-2}" --frames 1-8 --res 192x112 --spp 32 \
     --reference-spp 256 --reference-frames 3-5 --half --out "$out/glass-val"
+$py -m radn_datagen dataset --split contact-train --scenes "${CONTACT_TRAIN:-5}" --frames 1-6 --res 160x160 \
+    --res-scales 1,0.8 --spp 16,32,64 --teacher-spp 1x --half --out "$out/contact-train"
+$py -m radn_datagen dataset --split contact-val --scenes "${CONTACT_VAL:-2}" --frames 1-8 --res 192x112 --spp 32 \
+    --reference-spp 256 --reference-frames 3-5 --half --out "$out/contact-val"
+$py -m radn_datagen dataset --split contact-test --scenes "${CONTACT_TEST:-2}" --frames 1-8 --res 192x112 --spp 32 \
+    --reference-spp 512 --reference-frames 3-6 --half --out "$out/contact-test"

@@ -20,9 +20,11 @@ from .oidn import MODES as OIDN_MODES
 # Disjoint seed ranges per split, so no scene is ever in two splits. The detail splits hold
 # scenes with fine detail (`detail.py`); detail-test is held aside: never used for training or
 # model selection. The fur splits hold scenes with fur and grass (`fur.py`); fur-test is held aside.
+# The contact splits add glass standing on a textured floor (`contact.py`); contact-test is held aside.
 SPLIT_BASE = {"train": 1_000_000, "val": 2_000_000, "test": 3_000_000,
               "detail-test": 4_000_000, "detail-train": 5_000_000, "detail-val": 6_000_000,
-              "fur-train": 7_000_000, "fur-val": 8_000_000, "fur-test": 9_000_000}
+              "fur-train": 7_000_000, "fur-val": 8_000_000, "fur-test": 9_000_000,
+              "contact-train": 10_000_000, "contact-val": 11_000_000, "contact-test": 12_000_000}
 TEACHER = "teacher"
 TEACHER_OIDN = "oidn"
 
@@ -62,7 +64,7 @@ def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
 
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
                  calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None,
-                 cycles_denoise=False, fur=False):
+                 cycles_denoise=False, fur=False, contact=False):
     """Renders one scene: the input levels (`levels` and `extra_spp`), the optional reference,
     and the optional teacher render (`teacher` spp) with its OIDN pseudo-reference."""
     import bpy  # noqa: F401  (imported here so --help works without bpy)
@@ -71,7 +73,8 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
     if calibration:
         desc = scenes.build_calibration(frames=frames, resolution=res)
     else:
-        desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail, fur=fur)
+        desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail, fur=fur,
+                            contact=contact)
     sc = scenes.bpy.context.scene
     render.configure(sc, exr_half=half, threads=threads, cycles_denoise=cycles_denoise)
     for lv in levels:
@@ -105,6 +108,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         "render_seconds_this_run": round(time.time() - t0, 1),
         "detail": bool(detail),
         "fur": bool(fur),
+        "contact": bool(contact),
         "scene": desc,
     }
     return render.write_manifest(out, info)
@@ -130,6 +134,9 @@ def main(argv=None):
                         help="add fine detail (implied by the detail-* splits)")
     common.add_argument("--fur", action="store_true",
                         help="add furry objects and grass in view (implied by the fur-* splits)")
+    common.add_argument("--contact", action="store_true",
+                        help="add glass standing on a textured floor in view, lit to throw caustics "
+                             "(implied by the contact-* splits)")
     common.add_argument("--reference-spp", type=int, default=0, help="also render a reference at this many spp")
     common.add_argument("--reference-frames", default=None, help="frame range of the reference (default: all)")
     common.add_argument("--half", action="store_true", help="write half-float PIZ EXRs (smaller)")
@@ -215,19 +222,20 @@ def main(argv=None):
     extra_spp = parse_spp_list(a.extra_spp)
     levels = tuple(a.levels.split(","))
 
-    def one(seed, out, detail, fur, calibration=False):
+    def one(seed, out, detail, fur, contact, calibration=False):
         spp, scene_res, extra = scene_settings(seed, spp_choices, res, res_scales, extra_spp)
         teacher = teacher_spp(a.teacher_spp, spp) or None
         return render_scene(seed, out, frames, scene_res, spp, a.reference_spp, ref_frames, a.half, a.threads,
                             a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher,
-                            cycles_denoise=a.cycles_denoise, fur=fur)
+                            cycles_denoise=a.cycles_denoise, fur=fur, contact=contact)
 
     if a.cmd == "scene":
-        print(f"wrote {one(a.seed, a.out, a.detail, a.fur, a.calibration)}")
+        print(f"wrote {one(a.seed, a.out, a.detail, a.fur, a.contact, a.calibration)}")
         return 0
     t0 = time.time()
     detail = a.detail or a.split.startswith("detail")
     fur = a.fur or a.split.startswith("fur")
+    contact = a.contact or a.split.startswith("contact")
     if a.with_hair and a.with_glass:
         raise SystemExit("--with-hair and --with-glass pick different scenes: give one")
     if a.with_hair:
@@ -239,7 +247,7 @@ def main(argv=None):
     for i, seed in enumerate(seeds):
         out = os.path.join(a.out, f"scene_{seed}")
         print(f"scene {i + 1}/{a.scenes} (seed {seed}) -> {out}   elapsed {time.time() - t0:.0f} s", flush=True)
-        one(seed, out, detail, fur)
+        one(seed, out, detail, fur, contact)
     return 0
 
 

@@ -234,11 +234,12 @@ def _layout(rng, scene, outdoor):
 
 
 def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, layout=None, detail=False,
-          fur=False):
+          fur=False, contact=False):
     """Builds scene `seed` in the current Blender session and returns its description. With
     `detail`, also the fine detail of `detail.add_detail`; with `fur`, the fur and grass of
-    `fur.add_fur` (each from its own random stream: the rest of the scene is the same with or
-    without them)."""
+    `fur.add_fur`; with `contact`, the glass standing on a textured floor of
+    `contact.add_contact` (each from its own random stream: the rest of the scene is the same with
+    or without them)."""
     rng = random.Random(seed)
     scene = reset()
     scene.frame_start, scene.frame_end = frames
@@ -326,6 +327,10 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
         from .fur import add_fur
 
         desc["fur"] = add_fur(seed, az, desc.get("room_size"), frames, _key_every_frame)
+    if contact:
+        from .contact import add_contact
+
+        desc["contact"] = add_contact(seed, az, desc.get("room_size"), frames, _key_every_frame)
     return desc
 
 

@@ -295,3 +295,38 @@ print(json.dumps({"plain": plain, "furry": furry, "hair_systems": len(systems)})
     assert all(f["strands"] >= 1500 * 5 and f["radius"] < 0.01 for f in fur["objects"] + grass)
     own_hair = sum(1 for o in plain["objects"] if o.get("hair"))
     assert result["hair_systems"] == own_hair + len(fur["objects"]) + len(grass)
+
+
+def test_contact_stands_glass_on_a_textured_floor_without_changing_the_rest_of_the_scene():
+    """`--contact` (the contact-* splits) adds two to four glass objects resting on a finely
+    textured floor patch, and a small light that throws caustics through them, drawn from their
+    own random stream: the scene's own objects, lights and camera stay the same."""
+    code = """
+import json
+import bpy
+from radn_datagen import scene
+plain = scene.build(10_000_000, frames=(1, 2), resolution=(32, 32))
+with_glass = scene.build(10_000_000, frames=(1, 2), resolution=(32, 32), contact=True)
+glass = [o for o in bpy.data.objects if o.type == "MESH" and o.data.materials
+         and o.data.materials[0].name.startswith("contact_glass")]
+bottoms = [min((o.matrix_world @ v.co).z for v in o.data.vertices) for o in glass]
+floor = [o for o in bpy.data.objects if o.type == "MESH" and o.data.materials
+         and o.data.materials[0].name.startswith("contact_floor")]
+transmission = [o.data.materials[0].node_tree.nodes.get("Principled BSDF").inputs["Transmission Weight"].default_value
+                for o in glass]
+print(json.dumps({"plain": plain, "with": with_glass, "bottoms": bottoms, "floor_z": [f.location.z for f in floor],
+                  "transmission": transmission}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], cwd=DATAGEN, check=True, capture_output=True, text=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    plain, with_glass = result["plain"], result["with"]
+    contact = with_glass.pop("contact")
+    assert with_glass == plain
+    n = len(contact["objects"])
+    assert 2 <= n <= 4 and len(result["bottoms"]) == n
+    # every glass object touches the floor patch (its bottom at or just below the patch's surface)
+    assert len(result["floor_z"]) == 1
+    assert all(-1e-4 <= b <= result["floor_z"][0] for b in result["bottoms"]), result
+    assert all(t == 1.0 for t in result["transmission"])
+    assert contact["floor"]["scale"] >= 20
+
