@@ -83,25 +83,23 @@ pub fn mix_with_guide(
         "the guide covers the result's pixels"
     );
     let n = values.width() * values.height();
-    let uniform = match weight {
+    match weight {
         MixWeight::Uniform(w) => {
             assert!((0.0..=1.0).contains(&w), "a mix weight is in [0, 1]");
             if w == 0.0 && outliers.is_none() {
                 return;
             }
-            w
         }
-        MixWeight::PerPixel(ws) => {
-            assert_eq!(ws.len(), n, "one mix weight per pixel");
-            0.0
-        }
-    };
+        MixWeight::PerPixel(ws) => assert_eq!(ws.len(), n, "one mix weight per pixel"),
+    }
     let own = |i: usize| match weight {
         MixWeight::Uniform(w) => w,
         MixWeight::PerPixel(ws) => ws[i].clamp(0.0, 1.0),
     };
-    // per pixel: the ramp's weight where it is above the mix's own, else the mix's own
+    // per pixel, where the weight varies: the mix's own, raised by the ramp where it is on
     let weights: Option<Vec<f32>> = match (outliers, weight) {
+        (None, MixWeight::Uniform(_)) => None,
+        (None, MixWeight::PerPixel(_)) => Some((0..n).map(own).collect()),
         (Some(ramp), _) => Some(
             mapped_luma(values)
                 .iter()
@@ -110,8 +108,6 @@ pub fn mix_with_guide(
                 .map(|(i, (r, g))| own(i).max(ramp.weight((r - g).abs())))
                 .collect(),
         ),
-        (None, MixWeight::PerPixel(ws)) => Some(ws.iter().map(|w| w.clamp(0.0, 1.0)).collect()),
-        (None, MixWeight::Uniform(_)) => None,
     };
     for c in 0..3 {
         let gain: Vec<f32> = values
@@ -120,7 +116,7 @@ pub fn mix_with_guide(
             .zip(guide.channel(c))
             .enumerate()
             .map(|(i, (&r, &g))| {
-                let w = weights.as_ref().map_or(uniform, |ws| ws[i]);
+                let w = weights.as_ref().map_or_else(|| own(i), |ws| ws[i]);
                 1.0 - w + w * g.max(0.0) / r.max(GUIDE_MIX_EPS)
             })
             .collect();

@@ -352,10 +352,13 @@ impl NetworkDenoiser {
                 let w = match (guides.mix, guides.mix_features) {
                     (Some(w), _) => w,
                     (None, Some(features)) => {
-                        let colour = filtered.clone().narrow(1, 0, 3).clamp_min(0.0);
-                        let log = (colour * inv_exposure + 1.0).log();
-                        let guide_log = self.denoiser.centre_guide_log(x);
-                        self.denoiser.mix_weight_of_result(features, log, guide_log)
+                        let b = features.dims()[0];
+                        self.denoiser.mix_weight_of_result(
+                            features,
+                            filtered.clone().narrow(1, 0, 3),
+                            Tensor::full([b, 1, 1, 1], inv_exposure, &self.device),
+                            x,
+                        )
                     }
                     (None, None) => {
                         unreachable!("a network with the guide mix predicts its weights")

@@ -31,8 +31,8 @@ pub enum MixWeights<'a> {
         denoiser: &'a Denoiser,
         /// The centre frame's features ([`crate::model::GuideWeights::mix_features`]).
         features: Tensor<4>,
-        /// The centre frame's guide as the network reads it ([`Denoiser::centre_guide_log`]).
-        guide_log: Tensor<4>,
+        /// The network's input, `[B, T, C, H, W]` (the head reads the centre frame's guide).
+        input: Tensor<5>,
         /// Per batch item, the reciprocal of the exposure the inputs were divided by
         /// (`[B, 1, 1, 1]`; 1 without exposure normalisation).
         inv_exposure: Tensor<4>,
@@ -47,13 +47,14 @@ impl LearnedMix<'_> {
             MixWeights::OfResult {
                 denoiser,
                 features,
-                guide_log,
+                input,
                 inv_exposure,
-            } => {
-                let scale = inv_exposure.clone().expand(result.dims());
-                let log = (result.clone().clamp_min(0.0) * scale + 1.0).log();
-                denoiser.mix_weight_of_result(features.clone(), log, guide_log.clone())
-            }
+            } => denoiser.mix_weight_of_result(
+                features.clone(),
+                result.clone(),
+                inv_exposure.clone(),
+                input,
+            ),
         }
     }
 

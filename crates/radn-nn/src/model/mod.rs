@@ -343,18 +343,24 @@ impl Denoiser {
 
     /// The learned guide mix's weight `[B, 1, H, W]` for a head that reads the kernels' result
     /// ([`NetConfig::guide_mix_reads_result`]): from the centre frame's features
-    /// ([`GuideWeights::mix_features`]), the result's log colour `ln(1 + max(0, r)/exposure)`
-    /// and the guide's (from the input, [`Denoiser::centre_guide_log`]).
+    /// ([`GuideWeights::mix_features`]), the result's colour `result` (linear, `[B, 3, H, W]`)
+    /// as log colour `ln(1 + max(0, r)·inv_exposure)` like the inputs' (`inv_exposure`
+    /// `[B, 1, 1, 1]`: the reciprocal of what the inputs were divided by), and the centre
+    /// frame's guide as the network `input` (`[B, T, C, H, W]`) holds it.
     pub fn mix_weight_of_result(
         &self,
         features: Tensor<4>,
-        result_log: Tensor<4>,
-        guide_log: Tensor<4>,
+        result: Tensor<4>,
+        inv_exposure: Tensor<4>,
+        input: &Tensor<5>,
     ) -> Tensor<4> {
         let Network::Ra(n) = &self.net else {
             panic!("only the RA network has the learned guide mix");
         };
         let head = n.mix_heads.first().expect("a learned guide mix head");
+        let scale = inv_exposure.expand(result.dims());
+        let result_log = (result.clamp_min(0.0) * scale + 1.0).log();
+        let guide_log = self.centre_guide_log(input);
         let diff = (result_log.clone() - guide_log.clone()).abs() * MIX_DIFF_SCALE;
         sigmoid(conv2d(
             head,
@@ -365,7 +371,7 @@ impl Denoiser {
 
     /// The centre frame's guide as the network reads it (log colour, `[B, 3, H, W]`) from its
     /// input `[B, T, C, H, W]`.
-    pub fn centre_guide_log(&self, input: &Tensor<5>) -> Tensor<4> {
+    fn centre_guide_log(&self, input: &Tensor<5>) -> Tensor<4> {
         let [b, t, _, h, w] = input.dims();
         input
             .clone()

@@ -342,7 +342,7 @@ fn learned_mix<'a>(
         (None, Some(features)) => MixWeights::OfResult {
             denoiser,
             features: features.clone(),
-            guide_log: denoiser.centre_guide_log(&b.features),
+            input: b.features.clone(),
             inv_exposure: b.inv_exposure.clone(),
         },
         (None, None) => return None,
