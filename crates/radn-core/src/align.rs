@@ -109,6 +109,10 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
         centre.albedo.as_ref(),
         centre.normal.as_ref(),
         centre.depth.as_ref(),
+        centre
+            .guide
+            .as_ref()
+            .filter(|_| params.confidence.guide.is_some()),
     );
 
     let mut slots: Vec<Option<AlignedFrame>> = (0..t).map(|_| None).collect();
@@ -177,6 +181,9 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 tf.albedo.as_ref(),
                 tf.normal.as_ref(),
                 tf.depth.as_ref(),
+                tf.guide
+                    .as_ref()
+                    .filter(|_| params.confidence.guide.is_some()),
             );
             // every plane of the frame along one flow, the taps computed once per pixel
             let mut srcs = vec![to.of(&guides_w.color), to.of(&tf.color)];
@@ -187,6 +194,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 tf.albedo.as_ref(),
                 tf.normal.as_ref(),
                 tf.guide.as_ref(),
+                guides_w.guide.as_ref(),
             ];
             srcs.extend(optional.iter().flatten().map(|p| to.of(p)));
             srcs.extend(tf.aovs.iter().map(|a| to.of(&a.plane)));
@@ -204,6 +212,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                     .depth
                     .as_ref()
                     .map(|p| warp_nearest_depth(to.of(p), flow_c)),
+                guide: take(6),
             };
             let conf = confidence(
                 &guides_c,

@@ -22,6 +22,20 @@ pub struct ConfidenceParams {
     /// Relative colour difference (3×3 prefiltered) at which the background term is e^-1.
     /// Renderers give the background no motion, so only its appearance can be checked.
     pub background_color: f32,
+    /// Relative difference of the frames' spatial guides (3×3 prefiltered, e.g. OIDN's result
+    /// of each frame) at which the guide term is e^-1; `None` leaves the guides out.
+    ///
+    /// Motion vectors follow the surface, so the geometric terms cannot see a surface whose
+    /// shading changed between frames: a reflection sliding over a turning metal face, a
+    /// refraction through turning glass, a light that moved. A noisy frame's colour is too noisy
+    /// to compare pixel by pixel, but a spatial denoiser's result is not, so where every frame
+    /// has one the term rejects such changes before the kernels average them in.
+    pub guide: Option<f32>,
+    /// Relative difference of the frames' own colour (3×3 prefiltered) at which the colour
+    /// term is e^-1 on surfaces; `None` leaves it out. The unguided counterpart of
+    /// [`ConfidenceParams::guide`]: it must be loose enough that render noise does not read as
+    /// change.
+    pub color: Option<f32>,
 }
 
 impl Default for ConfidenceParams {
@@ -33,9 +47,24 @@ impl Default for ConfidenceParams {
             normal_cos_hi: 0.95,
             depth_rel: 0.06,
             background_color: 0.08,
+            guide: None,
+            color: None,
         }
     }
 }
+
+/// The guide term's tolerance ([`ConfidenceParams::guide`]) that `radn denoise` uses when a run
+/// has a guide. Chosen among 0.1–1.0 on five validation sets with the shipped guided model
+/// (docs/guided.md, "Guide confidence"): it removes the ghost of a reflection sliding over a
+/// turning metal face (up to +0.5 dB on such a frame) and costs at most 0.06 dB elsewhere.
+pub const DEFAULT_GUIDE_CONFIDENCE: f32 = 0.6;
+
+/// The colour term's tolerance ([`ConfidenceParams::color`]) at the cleanest frames that
+/// `radn denoise` uses when a network run has no guide; it loosens with the frame's noise level
+/// (`radn_nn::infer::NetworkDenoiser::align_params_for`). Chosen among 0.3–1.0 on five
+/// validation sets with the default model (docs/guided.md, "Colour confidence"): +1.0 and
+/// +1.9 dB at 11 and 32 spp on val-256, where a reflection slides over a turning metal face.
+pub const DEFAULT_COLOR_CONFIDENCE: f32 = 0.5;
 
 /// The buffers confidence compares, 3×3 prefiltered so render noise does not read as change.
 #[derive(Clone, Debug)]
@@ -48,6 +77,8 @@ pub struct Guides {
     pub normal: Option<Plane>,
     /// Depth (not filtered: averaging across silhouettes would invent depths).
     pub depth: Option<Plane>,
+    /// The frame's prefiltered spatial guide ([`ConfidenceParams::guide`]).
+    pub guide: Option<Plane>,
 }
 
 impl Guides {
@@ -57,12 +88,14 @@ impl Guides {
         albedo: Option<&Plane>,
         normal: Option<&Plane>,
         depth: Option<&Plane>,
+        guide: Option<&Plane>,
     ) -> Self {
         Self {
             color: box3(color),
             albedo: albedo.map(box3),
             normal: normal.map(box3),
             depth: depth.cloned(),
+            guide: guide.map(box3),
         }
     }
 }
@@ -133,6 +166,12 @@ pub fn confidence(
                         let rel = (da - db).abs() / da.abs().max(db.abs()).max(1e-6);
                         c *= gauss(rel, depth_tol);
                     }
+                    if let (Some(tol), Some(a), Some(b)) = (p.guide, &centre.guide, &warped.guide) {
+                        c *= gauss(rel_diff3(a, b, i, n, 0.02), tol);
+                    }
+                    if let Some(tol) = p.color {
+                        c *= gauss(rel_diff3(&centre.color, &warped.color, i, n, 0.02), tol);
+                    }
                 }
                 *o = c * valid.data()[i];
             }
@@ -190,7 +229,7 @@ mod tests {
         let a = Plane::filled(4, 4, 3, albedo);
         let nrm = Plane::from_fn(4, 4, 3, |_, _, c| if c == 2 { 1.0 } else { 0.0 });
         let d = Plane::filled(4, 4, 1, depth);
-        Guides::new(&color, Some(&a), Some(&nrm), Some(&d))
+        Guides::new(&color, Some(&a), Some(&nrm), Some(&d), None)
     }
 
     #[test]
@@ -237,5 +276,50 @@ mod tests {
             &p,
         );
         assert!(c.data().iter().all(|&c| c < 1e-6));
+    }
+
+    #[test]
+    fn a_changed_guide_lowers_confidence_only_with_the_guide_term_on() {
+        // the same surface (albedo, normal and depth agree) whose shading changed: the side
+        // frame's guide is twice as bright in the left half
+        let frame = |bright: f32| {
+            let color = Plane::filled(8, 4, 3, 0.5);
+            let albedo = Plane::filled(8, 4, 3, 0.5);
+            let normal = Plane::from_fn(8, 4, 3, |_, _, c| if c == 2 { 1.0 } else { 0.0 });
+            let depth = Plane::filled(8, 4, 1, 3.0);
+            let guide = Plane::from_fn(8, 4, 3, |x, _, _| if x < 4 { bright } else { 0.5 });
+            Guides::new(
+                &color,
+                Some(&albedo),
+                Some(&normal),
+                Some(&depth),
+                Some(&guide),
+            )
+        };
+        let (centre, side) = (frame(0.5), frame(1.0));
+        let valid = Plane::filled(8, 4, 1, 1.0);
+        let off = ConfidenceParams::default();
+        let c = confidence(&centre, &side, &valid, None, 1, &off);
+        assert!(c.data().iter().all(|&c| (c - 1.0).abs() < 1e-6));
+        let on = ConfidenceParams {
+            guide: Some(0.6),
+            ..off
+        };
+        let c = confidence(&centre, &side, &valid, None, 1, &on);
+        // columns 0-2: L1 difference 3 * 0.5 over the mean L1 magnitude 3 * 0.75 (+ ε 0.02),
+        // 0.661, so e^-(0.661 / 0.6)^2 = 0.30; columns 3 and 4 see both halves through the
+        // prefilter; columns 5-7 agree
+        let expected = (-((1.5f32 / 2.27) / 0.6).powi(2)).exp();
+        for row in c.data().chunks(8) {
+            assert!(
+                row[..3].iter().all(|&v| (v - expected).abs() < 1e-4),
+                "{row:?}"
+            );
+            assert!(
+                row[3] > expected && row[3] < row[4] && row[4] < 1.0,
+                "{row:?}"
+            );
+            assert!(row[5..].iter().all(|&v| (v - 1.0).abs() < 1e-6), "{row:?}");
+        }
     }
 }

@@ -205,6 +205,12 @@ fn a_guide_needs_a_guided_model_and_a_guided_model_a_guide() {
         "--guide-mix 0.5",
     );
     fails(&["--method", "classic", "--guide", "oidn"], "classic");
+    // the guide term of the confidence, without guides to compare
+    fails(&["--guide-confidence", "0.6"], "give them with --guide");
+    fails(
+        &["--guide-confidence=0"],
+        "not auto, off or a positive tolerance",
+    );
     let m = guided_model(d.path());
     let m = m.to_str().unwrap();
     fails(&["--model", m], "reads a guide");

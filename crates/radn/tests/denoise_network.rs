@@ -5,7 +5,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_aovs_sum_to_beauty, radn, radn_ok, sample, with_aovs};
+use common::{assert_aovs_sum_to_beauty, beauty_rgb, radn, radn_ok, sample, with_aovs};
 use radn_core::exr_file::{ExrFile, SampleKind};
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::config::InputConfig;
@@ -252,6 +252,37 @@ fn banded_denoising_equals_whole_frame_denoising() {
         compared += x.len();
     });
     assert!(compared >= 3 * 10 * 176 * 300, "{compared}");
+}
+
+#[test]
+fn the_colour_confidence_changes_clean_frames_and_bands_still_equal_whole_frames() {
+    // the compiled-in default model on the 32-spp sample, a frame clean enough for the colour
+    // term (`--color-confidence auto`): it changes the result, and bands of 32 rows (whose
+    // alignment sees only their rows and gets the frame's noise level from the statistics pass)
+    // equal whole frames
+    let d = tempfile::tempdir().unwrap();
+    let input = format!("{}/high/frame_####.exr", sample().display());
+    let run = |name: &str, extra: &[&str]| {
+        let out = format!("{}/{name}/f_####.exr", d.path().display());
+        let mut args = vec!["denoise", "-i", &input, "-o", &out, "--frames", "4-5"];
+        args.extend(extra);
+        radn_ok(&args);
+        [4, 5].map(|f| beauty_rgb(&ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap()))
+    };
+    let whole = run("whole", &["--tile", "0"]);
+    let banded = run("banded", &["--tile", "32"]);
+    let off = run("off", &["--tile", "0", "--color-confidence", "off"]);
+    let mut changed = 0;
+    for ((w, b), o) in whole.iter().zip(&banded).zip(&off) {
+        for ((u, v), x) in w.data().iter().zip(b.data()).zip(o.data()) {
+            assert!(
+                (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                "whole {u}, banded {v}"
+            );
+            changed += usize::from((u - x).abs() > 1e-3 * u.abs().max(0.1));
+        }
+    }
+    assert!(changed > 100, "the colour term changed {changed} samples");
 }
 
 #[test]

@@ -45,6 +45,11 @@ pub struct NetworkDenoiser {
     pub device: Device,
     /// Alignment options.
     pub align: AlignParams,
+    /// The colour term of alignment's confidence at the cleanest frames
+    /// ([`radn_core::confidence::ConfidenceParams::color`]), loosened with the centre frame's
+    /// noise level by the input blend's noise scale ([`NetworkDenoiser::align_params_for`]) and
+    /// left out for frames the input blend leaves alone. `None`: `align`'s own setting.
+    pub color_confidence: Option<f32>,
     /// The input blend ([`input_blend`]): per pixel, the network's result is blended with the
     /// input by the classic denoiser's Wiener gain, so that it keeps only the change the
     /// input's noise explains and does not average a clean input's detail away. The weight is
@@ -105,6 +110,31 @@ pub fn auto_tile(denoiser: &Denoiser) -> usize {
 }
 
 impl NetworkDenoiser {
+    /// The alignment options for a window whose centre frame has noise level `level`: with
+    /// [`NetworkDenoiser::color_confidence`] set, the colour term's tolerance is that base times
+    /// the input blend's noise scale over its smallest (1 at the cleanest frames, up to 4), and
+    /// off for frames noisier than that, whose colour is too noisy to compare.
+    pub fn align_params_for(&self, level: Option<f32>) -> AlignParams {
+        let mut p = self.align;
+        if let Some(base) = self.color_confidence {
+            p.confidence.color = input_blend::noise_scale_for_level(level)
+                .map(|k| base * k / input_blend::MIN_NOISE_SCALE);
+        }
+        p
+    }
+
+    /// [`NetworkDenoiser::align_params_for`] the centre frame of `window`.
+    fn align_params_of(&self, window: &[Option<&Frame>]) -> AlignParams {
+        if self.color_confidence.is_none() {
+            return self.align;
+        }
+        let level = window[window.len() / 2].and_then(|c| {
+            radn_core::noise_level::NoiseLevelHistogram::of_frame(&c.color, c.albedo.as_ref())
+                .level()
+        });
+        self.align_params_for(level)
+    }
+
     /// A denoiser with the model's default threshold and its [`auto_tile`].
     pub fn new(denoiser: Denoiser, device: Device) -> Self {
         let threshold = denoiser.config.default_threshold();
@@ -116,6 +146,7 @@ impl NetworkDenoiser {
             batch: 1,
             device,
             align: AlignParams::default(),
+            color_confidence: None,
             refine: None,
             warp_stem_features: true,
             guide_mix: 0.0,
@@ -389,7 +420,7 @@ impl NetworkDenoiser {
     /// sequence ends), aligned here, with the stem features warped as
     /// [`WindowDenoiser::denoise`] warps them.
     pub fn window_utilization(&self, window: &[Option<&Frame>]) -> Vec<Plane> {
-        let win = align_window(window, &self.align);
+        let win = align_window(window, &self.align_params_of(window));
         let stems = self
             .reuses_frame_layers()
             .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
@@ -624,7 +655,9 @@ impl WindowDenoiser for NetworkDenoiser {
 
     fn denoise(&self, window: &[Option<&Frame>]) -> radn_core::Result<Denoised> {
         self.check_guides(window.iter().flatten().copied())?;
-        let win = timed(Stage::Align, || align_window(window, &self.align));
+        let win = timed(Stage::Align, || {
+            align_window(window, &self.align_params_of(window))
+        });
         let stems = self
             .reuses_frame_layers()
             .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
@@ -670,7 +703,8 @@ impl BandDenoiser for NetworkDenoiser {
         centre: &FrameStats,
     ) -> radn_core::Result<Denoised> {
         self.check_guides(window.iter().flatten().map(|b| b.frame))?;
-        let win = timed(Stage::Align, || align_bands(window, &self.align));
+        let params = self.align_params_for(centre.noise_level());
+        let win = timed(Stage::Align, || align_bands(window, &params));
         let scales = FeatureScales {
             depth: centre.mean_depth(),
             exposure: centre.exposure(),
@@ -937,6 +971,32 @@ mod tests {
         let wide = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
         assert_eq!(auto_tile(&wide), 256);
         assert_eq!(NetworkDenoiser::new(wide, Device::flex()).tile, 256);
+    }
+
+    #[test]
+    fn the_colour_term_loosens_with_the_noise_level_and_stops_at_noisy_frames() {
+        let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+        let mut n = NetworkDenoiser::new(d, Device::flex());
+        let tol =
+            |n: &NetworkDenoiser, level: Option<f32>| n.align_params_for(level).confidence.color;
+        // unset: alignment's own setting at every level
+        assert_eq!(tol(&n, Some(0.01)), None);
+        n.color_confidence = Some(0.5);
+        // the cleanest frames get the base, twice the lowest level's noise twice the base
+        let lowest = input_blend::LEVEL_AT_MIN_SCALE;
+        assert_eq!(tol(&n, Some(0.01)), Some(0.5));
+        assert_eq!(tol(&n, Some(lowest)), Some(0.5));
+        assert!((tol(&n, Some(2.0 * lowest)).unwrap() - 1.0).abs() < 1e-6);
+        // as noisy as the input blend's end (4 spp): off; a black frame has no level: off
+        let edge = lowest * input_blend::MAX_NOISE_SCALE / input_blend::MIN_NOISE_SCALE;
+        assert!((tol(&n, Some(edge)).unwrap() - 2.0).abs() < 1e-6);
+        assert_eq!(tol(&n, Some(1.01 * edge)), None);
+        assert_eq!(tol(&n, None), None);
+        // the other terms are alignment's own
+        assert_eq!(
+            n.align_params_for(Some(0.01)).confidence.albedo,
+            n.align.confidence.albedo
+        );
     }
 
     #[test]

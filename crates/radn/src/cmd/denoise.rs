@@ -4,6 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
 use radn_core::classic::pipeline::{ClassicDenoiser, ClassicParams};
+use radn_core::confidence::{DEFAULT_COLOR_CONFIDENCE, DEFAULT_GUIDE_CONFIDENCE};
 use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
@@ -109,6 +110,24 @@ pub struct Args {
     #[arg(long, value_name = "auto|off", default_value = "auto", value_parser = parse_auto_off,
           action = clap::ArgAction::Set)]
     pub guide_mix_outliers: bool,
+    /// Guided runs: alignment also compares each side frame's guide, warped, with the centre
+    /// frame's, and lowers the side frame's confidence where they differ (a reflection or a
+    /// refraction that moved over its surface, which motion vectors do not follow). `auto`: on
+    /// for runs with a guide, at 0.6 (chosen on five validation sets: docs/guided.md, "Guide
+    /// confidence"), off without one; `off`: the geometric terms alone; TOL: the relative
+    /// difference of the 3×3-prefiltered guides at which the term is e^-1.
+    #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_guide_confidence)]
+    pub guide_confidence: GuideConfidence,
+    /// Network: alignment also compares each side frame's own colour (3×3 prefiltered), warped,
+    /// with the centre frame's, and lowers its confidence where they differ: the unguided
+    /// counterpart of --guide-confidence. TOL is the relative difference at which the term is
+    /// e^-1 on the cleanest frames; it loosens with the frame's noise level (up to 4×) and is
+    /// off for frames as noisy as 4 spp, whose colour is too noisy to compare. `auto`: 0.5 for
+    /// runs without a guide (chosen on five validation sets: docs/guided.md, "Colour
+    /// confidence"), off with one (the guide term does it better); `off`: the geometric terms
+    /// alone.
+    #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_guide_confidence)]
+    pub color_confidence: GuideConfidence,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -314,6 +333,22 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     // a number (or off) given on the command line replaces a learned mix
     n.guide_mix_learned = matches!(a.guide_mix, GuideMixChoice::Auto);
     n.guide_mix_outliers = (guided && a.guide_mix_outliers).then_some(DEFAULT_OUTLIER_RAMP);
+    let with_guide = a.guide.guide.is_some();
+    n.align.confidence.guide = match a.guide_confidence {
+        GuideConfidence::Auto => with_guide.then_some(DEFAULT_GUIDE_CONFIDENCE),
+        GuideConfidence::Tolerance(tol) if !with_guide => {
+            return Err(anyhow!(
+                "--guide-confidence {tol} compares the frames' guides; give them with --guide"
+            ))
+        }
+        GuideConfidence::Tolerance(tol) => Some(tol),
+        GuideConfidence::Off => None,
+    };
+    n.color_confidence = match a.color_confidence {
+        GuideConfidence::Auto => (!with_guide).then_some(DEFAULT_COLOR_CONFIDENCE),
+        GuideConfidence::Tolerance(tol) => Some(tol),
+        GuideConfidence::Off => None,
+    };
     Ok(n)
 }
 
@@ -365,6 +400,31 @@ fn parse_auto_off(s: &str) -> Result<bool, String> {
         "auto" => Ok(true),
         "off" => Ok(false),
         _ => Err(format!("'{s}' is not auto or off")),
+    }
+}
+
+/// `--guide-confidence`'s and `--color-confidence`'s value.
+#[derive(Clone, Copy, Debug)]
+pub enum GuideConfidence {
+    /// The term's default: [`DEFAULT_GUIDE_CONFIDENCE`] for runs with a guide, and
+    /// [`DEFAULT_COLOR_CONFIDENCE`] for runs without one.
+    Auto,
+    /// The geometric terms alone.
+    Off,
+    /// The guide term at this tolerance.
+    Tolerance(f32),
+}
+
+/// Parses `--guide-confidence` and `--color-confidence`: `auto`, `off` or a positive
+/// tolerance.
+fn parse_guide_confidence(s: &str) -> Result<GuideConfidence, String> {
+    match s {
+        "auto" => Ok(GuideConfidence::Auto),
+        "off" => Ok(GuideConfidence::Off),
+        t => match t.parse::<f32>() {
+            Ok(t) if t > 0.0 && t.is_finite() => Ok(GuideConfidence::Tolerance(t)),
+            _ => Err(format!("'{t}' is not auto, off or a positive tolerance")),
+        },
     }
 }
 
