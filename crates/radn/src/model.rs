@@ -3,6 +3,7 @@
 use std::path::{Path, PathBuf};
 
 use anyhow::Result;
+use radn_core::confidence::{DEFAULT_COLOR_CONFIDENCE, DEFAULT_GUIDE_CONFIDENCE};
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::Denoiser;
 
@@ -48,7 +49,9 @@ fn builtin(guided: bool) -> (&'static [u8], &'static str) {
 }
 
 /// The network a command runs: the model `path` (or the compiled-in one `guide` calls for) on
-/// `device`, after checking that the model and the guide options fit each other.
+/// `device`, after checking that the model and the guide options fit each other, with
+/// alignment's default appearance term: the guide term for runs with a guide, the colour term
+/// for runs without.
 pub fn network_for(
     path: Option<&Path>,
     guide: &crate::input::GuideArgs,
@@ -58,7 +61,12 @@ pub fn network_for(
     let guided = guide.guide.is_some();
     let d = load_for(path, guided, &device)?;
     guide.check_model(&d, &label_for(path, guided))?;
-    Ok(radn_nn::infer::NetworkDenoiser::new(d, device))
+    let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
+    // alignment's appearance terms: the guides where the run has them, else the frames' own
+    // colour (docs/guided.md, "Guide confidence" and "Colour confidence")
+    n.align.confidence.guide = guided.then_some(DEFAULT_GUIDE_CONFIDENCE);
+    n.color_confidence = (!guided).then_some(DEFAULT_COLOR_CONFIDENCE);
+    Ok(n)
 }
 
 /// How a model choice is shown to the user: the file, or the compiled-in guided model for a

@@ -4,7 +4,6 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
 use radn_core::classic::pipeline::{ClassicDenoiser, ClassicParams};
-use radn_core::confidence::{DEFAULT_COLOR_CONFIDENCE, DEFAULT_GUIDE_CONFIDENCE};
 use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
@@ -334,21 +333,22 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     n.guide_mix_learned = matches!(a.guide_mix, GuideMixChoice::Auto);
     n.guide_mix_outliers = (guided && a.guide_mix_outliers).then_some(DEFAULT_OUTLIER_RAMP);
     let with_guide = a.guide.guide.is_some();
-    n.align.confidence.guide = match a.guide_confidence {
-        GuideConfidence::Auto => with_guide.then_some(DEFAULT_GUIDE_CONFIDENCE),
+    // `auto` keeps the terms crate::model::network_for set
+    match a.guide_confidence {
+        GuideConfidence::Auto => {}
         GuideConfidence::Tolerance(tol) if !with_guide => {
             return Err(anyhow!(
                 "--guide-confidence {tol} compares the frames' guides; give them with --guide"
             ))
         }
-        GuideConfidence::Tolerance(tol) => Some(tol),
-        GuideConfidence::Off => None,
-    };
-    n.color_confidence = match a.color_confidence {
-        GuideConfidence::Auto => (!with_guide).then_some(DEFAULT_COLOR_CONFIDENCE),
-        GuideConfidence::Tolerance(tol) => Some(tol),
-        GuideConfidence::Off => None,
-    };
+        GuideConfidence::Tolerance(tol) => n.align.confidence.guide = Some(tol),
+        GuideConfidence::Off => n.align.confidence.guide = None,
+    }
+    match a.color_confidence {
+        GuideConfidence::Auto => {}
+        GuideConfidence::Tolerance(tol) => n.color_confidence = Some(tol),
+        GuideConfidence::Off => n.color_confidence = None,
+    }
     Ok(n)
 }
 
@@ -406,8 +406,9 @@ fn parse_auto_off(s: &str) -> Result<bool, String> {
 /// `--guide-confidence`'s and `--color-confidence`'s value.
 #[derive(Clone, Copy, Debug)]
 pub enum GuideConfidence {
-    /// The term's default: [`DEFAULT_GUIDE_CONFIDENCE`] for runs with a guide, and
-    /// [`DEFAULT_COLOR_CONFIDENCE`] for runs without one.
+    /// The term's default (`crate::model::network_for`): the guide term at
+    /// `DEFAULT_GUIDE_CONFIDENCE` for runs with a guide, the colour term at
+    /// `DEFAULT_COLOR_CONFIDENCE` for runs without one.
     Auto,
     /// The geometric terms alone.
     Off,
