@@ -115,8 +115,8 @@ pub struct Args {
     /// for runs with a guide, at 0.6 (chosen on five validation sets: docs/guided.md, "Guide
     /// confidence"), off without one; `off`: the geometric terms alone; TOL: the relative
     /// difference of the 3×3-prefiltered guides at which the term is e^-1.
-    #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_guide_confidence)]
-    pub guide_confidence: GuideConfidence,
+    #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_confidence_term)]
+    pub guide_confidence: ConfidenceTerm,
     /// Network: alignment also compares each side frame's own colour (3×3 prefiltered), warped,
     /// with the centre frame's, and lowers its confidence where they differ: the unguided
     /// counterpart of --guide-confidence. TOL is the relative difference at which the term is
@@ -125,8 +125,8 @@ pub struct Args {
     /// runs without a guide (chosen on five validation sets: docs/guided.md, "Colour
     /// confidence"), off with one (the guide term does it better); `off`: the geometric terms
     /// alone.
-    #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_guide_confidence)]
-    pub color_confidence: GuideConfidence,
+    #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_confidence_term)]
+    pub color_confidence: ConfidenceTerm,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -335,19 +335,19 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
     let with_guide = a.guide.guide.is_some();
     // `auto` keeps the terms crate::model::network_for set
     match a.guide_confidence {
-        GuideConfidence::Auto => {}
-        GuideConfidence::Tolerance(tol) if !with_guide => {
+        ConfidenceTerm::Auto => {}
+        ConfidenceTerm::Tolerance(tol) if !with_guide => {
             return Err(anyhow!(
                 "--guide-confidence {tol} compares the frames' guides; give them with --guide"
             ))
         }
-        GuideConfidence::Tolerance(tol) => n.align.confidence.guide = Some(tol),
-        GuideConfidence::Off => n.align.confidence.guide = None,
+        ConfidenceTerm::Tolerance(tol) => n.align.confidence.guide = Some(tol),
+        ConfidenceTerm::Off => n.align.confidence.guide = None,
     }
     match a.color_confidence {
-        GuideConfidence::Auto => {}
-        GuideConfidence::Tolerance(tol) => n.color_confidence = Some(tol),
-        GuideConfidence::Off => n.color_confidence = None,
+        ConfidenceTerm::Auto => {}
+        ConfidenceTerm::Tolerance(tol) => n.color_confidence = Some(tol),
+        ConfidenceTerm::Off => n.color_confidence = None,
     }
     Ok(n)
 }
@@ -405,25 +405,25 @@ fn parse_auto_off(s: &str) -> Result<bool, String> {
 
 /// `--guide-confidence`'s and `--color-confidence`'s value.
 #[derive(Clone, Copy, Debug)]
-pub enum GuideConfidence {
+pub enum ConfidenceTerm {
     /// The term's default (`crate::model::network_for`): the guide term at
     /// `DEFAULT_GUIDE_CONFIDENCE` for runs with a guide, the colour term at
     /// `DEFAULT_COLOR_CONFIDENCE` for runs without one.
     Auto,
     /// The geometric terms alone.
     Off,
-    /// The guide term at this tolerance.
+    /// The term at this tolerance.
     Tolerance(f32),
 }
 
 /// Parses `--guide-confidence` and `--color-confidence`: `auto`, `off` or a positive
 /// tolerance.
-fn parse_guide_confidence(s: &str) -> Result<GuideConfidence, String> {
+fn parse_confidence_term(s: &str) -> Result<ConfidenceTerm, String> {
     match s {
-        "auto" => Ok(GuideConfidence::Auto),
-        "off" => Ok(GuideConfidence::Off),
+        "auto" => Ok(ConfidenceTerm::Auto),
+        "off" => Ok(ConfidenceTerm::Off),
         t => match t.parse::<f32>() {
-            Ok(t) if t > 0.0 && t.is_finite() => Ok(GuideConfidence::Tolerance(t)),
+            Ok(t) if t > 0.0 && t.is_finite() => Ok(ConfidenceTerm::Tolerance(t)),
             _ => Err(format!("'{t}' is not auto, off or a positive tolerance")),
         },
     }
