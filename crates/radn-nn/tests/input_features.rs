@@ -109,6 +109,7 @@ fn prepared_tiles_record_the_exposure_inference_uses() {
         pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
         guide: Default::default(),
         oidn_threads: 0,
+        guide_confidence: None,
     };
     prepare(&sample_dir(), d.path(), &opts, |_, _| {}).unwrap();
     let ds = TileDataset::open(d.path()).unwrap();

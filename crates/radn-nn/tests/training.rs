@@ -19,6 +19,7 @@ fn tiles(out: &Path, seed: u64, per_window: usize) {
         pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
         guide: Default::default(),
         oidn_threads: 0,
+        guide_confidence: None,
     };
     prepare(&sample(), out, &opts, |_, _| {}).unwrap();
 }
@@ -444,6 +445,7 @@ fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
         pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
         guide: Default::default(),
         oidn_threads: 0,
+        guide_confidence: None,
     };
     let e = prepare(&data, &out, &opts, |_, _| {})
         .unwrap_err()
@@ -486,10 +488,60 @@ fn guided_tile_sets() -> Option<tempfile::TempDir> {
             pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
             guide: radn_core::guide::GuideChoice::Oidn,
             oidn_threads: 2,
+            guide_confidence: None,
         };
         prepare(&sample(), &d.path().join(set), &opts, |_, _| {}).unwrap();
     }
     Some(d)
+}
+
+#[test]
+fn tiles_aligned_with_the_guide_term_record_it_and_trust_side_frames_less() {
+    // `radn prepare --guide-confidence 0.6` against the same tiles without it: the manifest
+    // says how its windows were aligned, and the stored confidence (the last base channel) of
+    // the side frames is the geometric one times the guide term, so never higher and lower
+    // somewhere (the sample's camera and objects move, and at 4 spp its guides differ)
+    if guided_tile_sets().is_none() {
+        return;
+    }
+    let d = tempfile::tempdir().unwrap();
+    let set = |tol: Option<f32>| {
+        let out = d.path().join(format!("{tol:?}"));
+        let opts = PrepareOptions {
+            tile: 32,
+            tiles_per_window: 1,
+            seed: 1,
+            frames: 5,
+            pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
+            guide: radn_core::guide::GuideChoice::Oidn,
+            oidn_threads: 2,
+            guide_confidence: tol,
+        };
+        prepare(&sample(), &out, &opts, |_, _| {}).unwrap();
+        TileDataset::open(&out).unwrap()
+    };
+    let (without, with) = (set(None), set(Some(0.6)));
+    assert_eq!(without.manifest.guide_confidence, None);
+    assert_eq!(with.manifest.guide_confidence, Some(0.6));
+    let c = radn_nn::model::config::INPUT_CHANNELS;
+    let n = 32 * 32;
+    let (mut lower, mut sum_without, mut sum_with) = (0usize, 0.0f64, 0.0f64);
+    for i in 0..with.manifest.records {
+        let (a, b) = (without.get(i).unwrap(), with.get(i).unwrap());
+        for (fa, fb) in a.features.iter().zip(&b.features) {
+            for frame in [0, 1, 3, 4] {
+                let at = (frame * c + c - 1) * n;
+                for (&u, &v) in fa[at..at + n].iter().zip(&fb[at..at + n]) {
+                    assert!(v <= u + 1e-3, "record {i}, frame {frame}: {v} above {u}");
+                    lower += usize::from(v < u - 0.05);
+                    sum_without += f64::from(u);
+                    sum_with += f64::from(v);
+                }
+            }
+        }
+    }
+    assert!(lower > 100, "the guide term lowered {lower} confidences");
+    assert!(sum_with < sum_without, "{sum_with} vs {sum_without}");
 }
 
 #[test]

@@ -65,6 +65,10 @@ pub struct PrepareOptions {
     pub guide: GuideChoice,
     /// Threads of Intel Open Image Denoise, for `guide` `oidn` (0: every core).
     pub oidn_threads: usize,
+    /// Alignment's guide term ([`radn_core::confidence::ConfidenceParams::guide`]) for the
+    /// stored windows, so a guided network can train on windows aligned as `radn denoise
+    /// --guide-confidence` aligns them; `None`: the geometric terms alone.
+    pub guide_confidence: Option<f32>,
 }
 
 /// The default pseudo-reference level (made by `radn pseudoref`).
@@ -108,6 +112,10 @@ pub struct Manifest {
     /// without guides (all before format 3).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub guide: Option<String>,
+    /// The guide term's tolerance the windows were aligned with
+    /// ([`PrepareOptions::guide_confidence`]); none without it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide_confidence: Option<f32>,
 }
 
 /// One training tile.
@@ -171,6 +179,8 @@ pub fn prepare(
         GuideChoice::Oidn => Some(std::sync::Arc::new(OidnGuides::new(opts.oidn_threads)?)),
         _ => None,
     };
+    let mut align = AlignParams::default();
+    align.confidence.guide = opts.guide_confidence.filter(|_| guided);
     let mut writer = ShardWriter::new(out, rb);
     let mut with_pseudo = 0;
     let total: usize = scenes.len();
@@ -220,7 +230,7 @@ pub fn prepare(
             let mut exposures = Vec::new();
             let mut guides = Vec::new();
             for level in inputs.iter_mut() {
-                let win = level.aligned(k, &AlignParams::default())?;
+                let win = level.aligned(k, &align)?;
                 feats.push(features(&win));
                 vals.push(color_values(&win));
                 exposures.push(FeatureScales::of(&win).exposure);
@@ -300,6 +310,7 @@ pub fn prepare(
             GuideChoice::Denoised => Some("denoised".into()),
             GuideChoice::Layer(l) => Some(l.clone()),
         },
+        guide_confidence: align.confidence.guide,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;

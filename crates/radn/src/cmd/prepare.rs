@@ -32,6 +32,26 @@ pub struct Args {
     /// Open Image Denoise of that very render; `denoised` or a layer: read from the files).
     #[command(flatten)]
     pub guide: crate::input::GuideArgs,
+    /// With a guide: align the stored windows with the guide term of the confidence at this
+    /// tolerance, as `radn denoise --guide-confidence` does (e.g. 0.6, its default); `off`
+    /// (the default here, as every shipped model's tiles were made): the geometric terms alone.
+    #[arg(long, value_name = "off|TOL", default_value = "off", value_parser = parse_tolerance)]
+    pub guide_confidence: Tolerance,
+}
+
+/// `--guide-confidence`'s value: a tolerance, `None` for `off`.
+#[derive(Clone, Copy, Debug)]
+pub struct Tolerance(pub Option<f32>);
+
+/// Parses `off` or a positive tolerance.
+fn parse_tolerance(s: &str) -> Result<Tolerance, String> {
+    match s {
+        "off" => Ok(Tolerance(None)),
+        t => match t.parse::<f32>() {
+            Ok(t) if t > 0.0 && t.is_finite() => Ok(Tolerance(Some(t))),
+            _ => Err(format!("'{t}' is not off or a positive tolerance")),
+        },
+    }
 }
 
 /// Cuts the tiles.
@@ -46,6 +66,7 @@ pub fn run(a: Args) -> Result<()> {
         pseudo_level: a.pseudo.clone(),
         guide: a.guide.guide.clone(),
         oidn_threads: a.guide.oidn_threads,
+        guide_confidence: a.guide_confidence.0,
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {
         pb.set_position(done as u64)
