@@ -101,16 +101,7 @@ fn an_exposure_normalised_network_scales_with_the_shot() {
 #[test]
 fn prepared_tiles_record_the_exposure_inference_uses() {
     let d = tempfile::tempdir().unwrap();
-    let opts = PrepareOptions {
-        tile: 32,
-        tiles_per_window: 1,
-        seed: 1,
-        frames: 5,
-        pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
-        guide: Default::default(),
-        oidn_threads: 0,
-        guide_confidence: None,
-    };
+    let opts = PrepareOptions::new(32, 1, 1);
     prepare(&sample_dir(), d.path(), &opts, |_, _| {}).unwrap();
     let ds = TileDataset::open(d.path()).unwrap();
     assert_eq!(ds.manifest.format, radn_nn::train::dataset::TILE_FORMAT);

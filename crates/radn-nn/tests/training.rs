@@ -11,16 +11,7 @@ fn sample() -> PathBuf {
 }
 
 fn tiles(out: &Path, seed: u64, per_window: usize) {
-    let opts = PrepareOptions {
-        tile: 32,
-        tiles_per_window: per_window,
-        seed,
-        frames: 5,
-        pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
-        guide: Default::default(),
-        oidn_threads: 0,
-        guide_confidence: None,
-    };
+    let opts = PrepareOptions::new(32, per_window, seed);
     prepare(&sample(), out, &opts, |_, _| {}).unwrap();
 }
 
@@ -437,16 +428,7 @@ fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
     let cut = data.join("b/low/frame_0005.exr");
     let bytes = std::fs::read(&cut).unwrap();
     std::fs::write(&cut, &bytes[..bytes.len() / 2]).unwrap();
-    let opts = PrepareOptions {
-        tile: 32,
-        tiles_per_window: 1,
-        seed: 1,
-        frames: 5,
-        pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
-        guide: Default::default(),
-        oidn_threads: 0,
-        guide_confidence: None,
-    };
+    let opts = PrepareOptions::new(32, 1, 1);
     let e = prepare(&data, &out, &opts, |_, _| {})
         .unwrap_err()
         .to_string();
@@ -481,14 +463,9 @@ fn guided_tile_sets() -> Option<tempfile::TempDir> {
     let d = tempfile::tempdir().unwrap();
     for (set, seed) in [("train", 1), ("val", 2)] {
         let opts = PrepareOptions {
-            tile: 32,
-            tiles_per_window: 1,
-            seed,
-            frames: 5,
-            pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
             guide: radn_core::guide::GuideChoice::Oidn,
             oidn_threads: 2,
-            guide_confidence: None,
+            ..PrepareOptions::new(32, 1, seed)
         };
         prepare(&sample(), &d.path().join(set), &opts, |_, _| {}).unwrap();
     }
@@ -508,14 +485,10 @@ fn tiles_aligned_with_the_guide_term_record_it_and_trust_side_frames_less() {
     let set = |tol: Option<f32>| {
         let out = d.path().join(format!("{tol:?}"));
         let opts = PrepareOptions {
-            tile: 32,
-            tiles_per_window: 1,
-            seed: 1,
-            frames: 5,
-            pseudo_level: radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL.to_string(),
             guide: radn_core::guide::GuideChoice::Oidn,
             oidn_threads: 2,
             guide_confidence: tol,
+            ..PrepareOptions::new(32, 1, 1)
         };
         prepare(&sample(), &out, &opts, |_, _| {}).unwrap();
         TileDataset::open(&out).unwrap()

@@ -71,6 +71,24 @@ pub struct PrepareOptions {
     pub guide_confidence: Option<f32>,
 }
 
+impl PrepareOptions {
+    /// `tiles_per_window` tiles of `tile` px per 5-frame window at positions seeded by `seed`,
+    /// the default pseudo-reference level, no guide, and the geometric terms of alignment alone;
+    /// the rest is set by struct update.
+    pub fn new(tile: usize, tiles_per_window: usize, seed: u64) -> Self {
+        Self {
+            tile,
+            tiles_per_window,
+            seed,
+            frames: 5,
+            pseudo_level: default_pseudo_level(),
+            guide: GuideChoice::None,
+            oidn_threads: 0,
+            guide_confidence: None,
+        }
+    }
+}
+
 /// The default pseudo-reference level (made by `radn pseudoref`).
 pub const DEFAULT_PSEUDO_LEVEL: &str = "pseudo";
 

@@ -59,14 +59,11 @@ pub fn run(a: Args) -> Result<()> {
     let scenes = radn_core::sequence::scene_folders(&a.data, "high")?.len();
     let pb = crate::progress::frames(scenes as u64, "scenes");
     let opts = PrepareOptions {
-        tile: a.tile,
-        tiles_per_window: a.tiles_per_window,
-        seed: a.seed,
-        frames: 5,
         pseudo_level: a.pseudo.clone(),
         guide: a.guide.guide.clone(),
         oidn_threads: a.guide.oidn_threads,
         guide_confidence: a.guide_confidence.0,
+        ..PrepareOptions::new(a.tile, a.tiles_per_window, a.seed)
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {
         pb.set_position(done as u64)
