@@ -76,12 +76,23 @@ impl FeatureScales {
     /// The scales of a whole window.
     pub fn of(win: &AlignedWindow) -> Self {
         let c = win.centre();
+        Self::of_centre(&c.color, c.albedo.as_ref(), c.depth.as_ref())
+    }
+
+    /// The scales of a window whose centre frame has these planes: the window's centre is the
+    /// frame as rendered, so they can be known before the window is aligned (and set how it
+    /// is aligned: [`crate::infer::NetworkDenoiser::align_params_for`]).
+    pub fn of_centre(
+        color: &radn_core::Plane,
+        albedo: Option<&radn_core::Plane>,
+        depth: Option<&radn_core::Plane>,
+    ) -> Self {
         Self {
-            depth: c.depth.as_ref().map_or(1.0, |d| {
+            depth: depth.map_or(1.0, |d| {
                 mean_geometry_depth(add_geometry_depths(d, (0.0, 0)))
             }),
-            exposure: log_average_luminance(add_log_luminance(&c.color, (0.0, 0))),
-            noise_level: NoiseLevelHistogram::of_frame(&c.color, c.albedo.as_ref()).level(),
+            exposure: log_average_luminance(add_log_luminance(color, (0.0, 0))),
+            noise_level: NoiseLevelHistogram::of_frame(color, albedo).level(),
         }
     }
 }

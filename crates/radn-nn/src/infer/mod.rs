@@ -123,16 +123,13 @@ impl NetworkDenoiser {
         p
     }
 
-    /// [`NetworkDenoiser::align_params_for`] the centre frame of `window`.
-    fn align_params_of(&self, window: &[Option<&Frame>]) -> AlignParams {
-        if self.color_confidence.is_none() {
-            return self.align;
-        }
-        let level = window[window.len() / 2].and_then(|c| {
-            radn_core::noise_level::NoiseLevelHistogram::of_frame(&c.color, c.albedo.as_ref())
-                .level()
-        });
-        self.align_params_for(level)
+    /// The window of frames `window` aligned for its centre frame's scales, and those scales
+    /// (computed once, before aligning, from the frame as rendered).
+    fn align_for_centre(&self, window: &[Option<&Frame>]) -> (AlignedWindow, FeatureScales) {
+        let c = window[window.len() / 2].expect("the centre frame of a window must exist");
+        let scales = FeatureScales::of_centre(&c.color, c.albedo.as_ref(), c.depth.as_ref());
+        let params = self.align_params_for(scales.noise_level);
+        (align_window(window, &params), scales)
     }
 
     /// A denoiser with the model's default threshold and its [`auto_tile`].
@@ -413,25 +410,29 @@ impl NetworkDenoiser {
     /// runs it on the aligned frames here, as in training; [`NetworkDenoiser::window_utilization`]
     /// measures what `denoise` computes.
     pub fn utilization(&self, win: &AlignedWindow) -> Vec<Plane> {
-        self.utilization_with(win, None)
+        self.utilization_with(win, None, FeatureScales::of(win))
     }
 
     /// [`NetworkDenoiser::utilization`] of the window of frames `window` (`None` beyond the
     /// sequence ends), aligned here, with the stem features warped as
     /// [`WindowDenoiser::denoise`] warps them.
     pub fn window_utilization(&self, window: &[Option<&Frame>]) -> Vec<Plane> {
-        let win = align_window(window, &self.align_params_of(window));
+        let (win, scales) = self.align_for_centre(window);
         let stems = self
             .reuses_frame_layers()
             .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
-        self.utilization_with(&win, stems.as_ref())
+        self.utilization_with(&win, stems.as_ref(), scales)
     }
 
-    fn utilization_with(&self, win: &AlignedWindow, stems: Option<&WindowStems>) -> Vec<Plane> {
+    fn utilization_with(
+        &self,
+        win: &AlignedWindow,
+        stems: Option<&WindowStems>,
+        scales: FeatureScales,
+    ) -> Vec<Plane> {
         let t = win.frames.len();
         let zeros = |r: Region| vec![0.0f32; t * r.pixels()];
         let h = win.centre().color.height();
-        let scales = FeatureScales::of(win);
         let mass = self.run_tiled(win, stems, scales, 0..h, zeros, 1, |p, _, _, _| {
             p.frame_mass(t)
         });
@@ -655,13 +656,12 @@ impl WindowDenoiser for NetworkDenoiser {
 
     fn denoise(&self, window: &[Option<&Frame>]) -> radn_core::Result<Denoised> {
         self.check_guides(window.iter().flatten().copied())?;
-        let win = timed(Stage::Align, || {
-            align_window(window, &self.align_params_of(window))
-        });
+        let (win, scales) = timed(Stage::Align, || self.align_for_centre(window));
         let stems = self
             .reuses_frame_layers()
             .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
-        let out = self.denoise_aligned_with(&win, stems.as_ref());
+        let h = win.centre().color.height();
+        let out = self.denoise_rows(&win, stems.as_ref(), scales, 0..h);
         log_stages(
             window
                 .get(window.len() / 2)
