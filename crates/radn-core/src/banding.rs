@@ -18,7 +18,10 @@ use crate::noise_level::NoiseLevelHistogram;
 use crate::plane::Plane;
 
 /// Rows each one-frame hop of banded alignment needs beyond the rows its motion reaches: the
-/// bilinear lookup's second row and the 3×3 prefilter of the confidence guides.
+/// lookup's farther row and the 3×3 prefilter of the confidence guides. The reach is rounded
+/// up to whole rows, so a lookup reads with a non-zero weight at most one row beyond it, with
+/// either resampling ([`crate::warp::Resampling`]: bilinear's next row, Catmull-Rom's row
+/// before and two after the position).
 pub const HOP_MARGIN_ROWS: usize = 2;
 
 /// Rows next to a band cut that is not a frame edge where banded alignment may differ from
@@ -210,8 +213,8 @@ pub fn hop_reach(window: &[Option<MotionReach>]) -> Vec<usize> {
 /// `centre` to equal whole-frame alignment. `reach[k]` is how many rows the one-frame hop
 /// between window frame k and its neighbour towards the centre can move (the larger vertical
 /// motion of the two fields that describe it, [`vertical_reach`]); `reach[r]`
-/// is unused. Each hop adds its reach plus two rows (the bilinear neighbour and the 3×3
-/// prefilter of the confidence guides).
+/// is unused. Each hop adds its reach plus [`HOP_MARGIN_ROWS`] (the lookup's farther row and
+/// the 3×3 prefilter of the confidence guides).
 pub fn window_band_rows(
     centre: Range<usize>,
     reach: &[usize],

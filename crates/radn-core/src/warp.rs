@@ -1,6 +1,8 @@
-//! Backward bilinear warping of whole planes along a displacement field.
+//! Backward warping of planes along a displacement field: bilinear, or clamped Catmull-Rom
+//! where one-pixel detail must survive subpixel shifts.
 
 use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
 
 use crate::banding::Band;
 use crate::plane::Plane;
@@ -41,6 +43,41 @@ pub fn warp_band(src: Band, flow: Band) -> Plane {
     out
 }
 
+/// How a warp samples a plane between its pixels.
+///
+/// Bilinear interpolation at a half-pixel shift averages two pixels: a line one pixel wide
+/// loses half its contrast in every warped side frame, and a static wire under a panning
+/// camera is shifted by a fraction of a pixel in every frame of the window. Catmull-Rom keeps
+/// it; its result is clamped to the range of the four nearest pixels, so it neither rings
+/// around edges nor goes negative on HDR values, and whole-pixel shifts copy pixels exactly
+/// with either.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Resampling {
+    /// The four nearest pixels, weighted by distance.
+    #[default]
+    Bilinear,
+    /// The sixteen nearest pixels with Catmull-Rom weights (a cubic through the middle two
+    /// pixels of each row and column, with slopes from their neighbours), clamped to the four
+    /// nearest pixels' range.
+    CatmullRom,
+}
+
+impl Resampling {
+    /// True for the default ([`Resampling::Bilinear`]), which model files leave out.
+    pub fn is_bilinear(&self) -> bool {
+        *self == Resampling::Bilinear
+    }
+
+    /// The name the command line and model descriptions use.
+    pub fn name(&self) -> &'static str {
+        match self {
+            Resampling::Bilinear => "bilinear",
+            Resampling::CatmullRom => "catmull-rom",
+        }
+    }
+}
+
 /// [`warp_band`] of several planes of one frame band along one flow: each pixel's bilinear
 /// taps and weights are computed once for every channel of every plane (the values equal
 /// warping each plane alone, bit for bit). A side frame's alignment warps some twenty channels
@@ -50,6 +87,17 @@ pub fn warp_band(src: Band, flow: Band) -> Plane {
 /// When the planes are not bands of one size and position in one frame, or differ from the
 /// flow in width.
 pub fn warp_bands(srcs: &[Band], flow: Band) -> Vec<Plane> {
+    warp_bands_with(srcs, flow, Resampling::Bilinear)
+}
+
+/// [`warp_bands`] with the given resampling. The sources must hold the rows the flow reaches,
+/// rounded out to whole rows, and one more on each side: a lookup reads with a non-zero weight
+/// no farther (Catmull-Rom's second row below a position lies beyond the rounded reach only
+/// where the position is a whole row short of it).
+///
+/// # Panics
+/// As [`warp_bands`].
+pub fn warp_bands_with(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plane> {
     let (w, h) = (flow.plane.width(), flow.plane.height());
     let Some(first) = srcs.first() else {
         return Vec::new();
@@ -72,10 +120,17 @@ pub fn warp_bands(srcs: &[Band], flow: Band) -> Vec<Plane> {
         .collect();
     let dsts: Vec<RowWriter> = outs.iter_mut().map(|v| RowWriter(v.as_mut_ptr())).collect();
     let (fx, fy) = (flow.plane.channel(0), flow.plane.channel(1));
-    (0..h)
-        .into_par_iter()
-        .for_each_init(Vec::new, |taps: &mut Vec<Tap>, y| {
+    // the band row holding frame row `fr` (clamped to the frame first)
+    let band_row = |fr: i64| -> usize {
+        let fr = fr.clamp(0, full_h as i64 - 1) as usize;
+        fr.saturating_sub(band_y0).min(last)
+    };
+    let col = |c: i64| -> usize { c.clamp(0, w as i64 - 1) as usize };
+    (0..h).into_par_iter().for_each_init(
+        || (Vec::new(), Vec::new()),
+        |(taps, cubic): &mut (Vec<Tap>, Vec<CubicTap>), y| {
             taps.clear();
+            cubic.clear();
             for x in 0..w {
                 let i = y * w + x;
                 // exactly the arithmetic of `Band::bilinear`
@@ -83,37 +138,64 @@ pub fn warp_bands(srcs: &[Band], flow: Band) -> Vec<Plane> {
                 let yf = ((y + flow.y0) as f32 + fy[i]).clamp(0.0, (full_h - 1) as f32);
                 let x0 = xf.floor() as usize;
                 let y0 = yf.floor() as usize;
-                let x1 = (x0 + 1).min(w - 1);
-                let y1 = (y0 + 1).min(full_h - 1);
-                let r0 = y0.saturating_sub(band_y0).min(last);
-                let r1 = y1.saturating_sub(band_y0).min(last);
+                let (tx, ty) = (xf - x0 as f32, yf - y0 as f32);
                 debug_assert!(
-                    y0 >= band_y0
-                        && y0 - band_y0 <= last
-                        && (yf == y0 as f32 || y1 - band_y0 <= last),
+                    y0 >= band_y0 && y0 - band_y0 <= last,
                     "band rows do not hold row {y0}"
                 );
-                taps.push(Tap {
-                    top: [r0 * w + x0, r0 * w + x1],
-                    bottom: [r1 * w + x0, r1 * w + x1],
-                    fx: xf - x0 as f32,
-                    fy: yf - y0 as f32,
-                });
+                match resampling {
+                    Resampling::Bilinear => {
+                        let x1 = (x0 + 1).min(w - 1);
+                        let y1 = (y0 + 1).min(full_h - 1);
+                        let r0 = y0.saturating_sub(band_y0).min(last);
+                        let r1 = y1.saturating_sub(band_y0).min(last);
+                        debug_assert!(
+                            ty == 0.0 || y1 - band_y0 <= last,
+                            "band rows do not hold row {y1}"
+                        );
+                        taps.push(Tap {
+                            top: [r0 * w + x0, r0 * w + x1],
+                            bottom: [r1 * w + x0, r1 * w + x1],
+                            fx: tx,
+                            fy: ty,
+                        });
+                    }
+                    Resampling::CatmullRom => {
+                        let (x0, y0) = (x0 as i64, y0 as i64);
+                        cubic.push(CubicTap {
+                            rows: [-1, 0, 1, 2].map(|d| band_row(y0 + d) * w),
+                            cols: [-1, 0, 1, 2].map(|d| col(x0 + d)),
+                            wx: catmull_rom_weights(tx),
+                            wy: catmull_rom_weights(ty),
+                        });
+                    }
+                }
             }
             for (src, dst) in srcs.iter().zip(&dsts) {
                 for c in 0..src.plane.channels() {
                     let ch = src.plane.channel(c);
-                    // SAFETY: row `y` of channel `c` of this output: `c * n + y * w .. + w` lies
-                    // within the `channels · n` floats reserved, and only this job writes it.
+                    // SAFETY: row `y` of channel `c` of this output: `c * n + y * w .. + w`
+                    // lies within the `channels · n` floats reserved, and only this job
+                    // writes it.
                     let row = unsafe { dst.row(c * n + y * w, w) };
-                    for (d, t) in row.iter_mut().zip(taps.iter()) {
-                        let a = ch[t.top[0]] * (1.0 - t.fx) + ch[t.top[1]] * t.fx;
-                        let b = ch[t.bottom[0]] * (1.0 - t.fx) + ch[t.bottom[1]] * t.fx;
-                        d.write(a * (1.0 - t.fy) + b * t.fy);
+                    match resampling {
+                        Resampling::Bilinear => {
+                            for (d, t) in row.iter_mut().zip(taps.iter()) {
+                                let a = ch[t.top[0]] * (1.0 - t.fx) + ch[t.top[1]] * t.fx;
+                                let b = ch[t.bottom[0]] * (1.0 - t.fx) + ch[t.bottom[1]] * t.fx;
+                                d.write(a * (1.0 - t.fy) + b * t.fy);
+                            }
+                        }
+                        Resampling::CatmullRom => {
+                            for (d, t) in row.iter_mut().zip(cubic.iter()) {
+                                d.write(t.sample(ch));
+                            }
+                        }
                     }
                 }
             }
-        });
+        },
+    );
     srcs.iter()
         .zip(outs)
         .map(|(s, mut v)| {
@@ -125,6 +207,19 @@ pub fn warp_bands(srcs: &[Band], flow: Band) -> Vec<Plane> {
         .collect()
 }
 
+/// The Catmull-Rom weights of the pixels at −1, 0, 1 and 2 for a position `t` ∈ [0, 1) past
+/// pixel 0: they sum to 1, reproduce linear ramps, and are (0, 1, 0, 0) at `t = 0`.
+fn catmull_rom_weights(t: f32) -> [f32; 4] {
+    let t2 = t * t;
+    let t3 = t2 * t;
+    [
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
+    ]
+}
+
 /// One pixel's bilinear lookup: the indices of its four neighbours in a band's channel and the
 /// weights of the right and lower ones.
 struct Tap {
@@ -132,6 +227,42 @@ struct Tap {
     bottom: [usize; 2],
     fx: f32,
     fy: f32,
+}
+
+/// One pixel's Catmull-Rom lookup: the offsets of its four rows in a band's channel, its four
+/// columns, and their weights.
+struct CubicTap {
+    rows: [usize; 4],
+    cols: [usize; 4],
+    wx: [f32; 4],
+    wy: [f32; 4],
+}
+
+impl CubicTap {
+    /// The clamped Catmull-Rom value of one channel.
+    #[inline]
+    fn sample(&self, ch: &[f32]) -> f32 {
+        let mut acc = 0.0;
+        for (r, wy) in self.rows.iter().zip(self.wy) {
+            let row = &ch[*r..];
+            let v = row[self.cols[0]] * self.wx[0]
+                + row[self.cols[1]] * self.wx[1]
+                + row[self.cols[2]] * self.wx[2]
+                + row[self.cols[3]] * self.wx[3];
+            acc += v * wy;
+        }
+        let near = [
+            ch[self.rows[1] + self.cols[1]],
+            ch[self.rows[1] + self.cols[2]],
+            ch[self.rows[2] + self.cols[1]],
+            ch[self.rows[2] + self.cols[2]],
+        ];
+        let lo = near.iter().copied().fold(f32::INFINITY, f32::min);
+        let hi = near.iter().copied().fold(f32::NEG_INFINITY, f32::max);
+        // (max then min: never panics, and a NaN neighbour cannot reach here, frames are
+        // repaired when read)
+        acc.max(lo).min(hi)
+    }
 }
 
 /// The start of an output buffer whose rows the parallel jobs of [`warp_bands`] write, each
@@ -187,6 +318,63 @@ mod tests {
                 }
             }
         }
+    }
+
+    /// Warps `src` along a constant flow with the given resampling.
+    fn shifted(src: &Plane, dx: f32, dy: f32, resampling: Resampling) -> Plane {
+        let flow = Plane::from_fn(
+            src.width(),
+            src.height(),
+            2,
+            |_, _, c| {
+                if c == 0 {
+                    dx
+                } else {
+                    dy
+                }
+            },
+        );
+        warp_bands_with(&[Band::whole(src)], Band::whole(&flow), resampling).remove(0)
+    }
+
+    #[test]
+    fn catmull_rom_copies_whole_pixel_shifts_and_reproduces_ramps() {
+        let src = Plane::from_fn(16, 12, 2, |x, y, c| (x * 7 + y * 13 + c * 101) as f32);
+        let out = shifted(&src, 3.0, -2.0, Resampling::CatmullRom);
+        for y in 2..12 {
+            for x in 0..13 {
+                for c in 0..2 {
+                    assert_eq!(out.get(x, y, c), src.get(x + 3, y - 2, c));
+                }
+            }
+        }
+        // a linear ramp at a subpixel shift, away from the clamped edges: exactly the ramp
+        let ramp = Plane::from_fn(16, 12, 1, |x, y, _| 0.5 * x as f32 - 0.25 * y as f32);
+        let out = shifted(&ramp, 0.3, 0.7, Resampling::CatmullRom);
+        for y in 1..9 {
+            for x in 1..13 {
+                let want = 0.5 * (x as f32 + 0.3) - 0.25 * (y as f32 + 0.7);
+                assert!((out.get(x, y, 0) - want).abs() < 1e-5, "{x},{y}");
+            }
+        }
+    }
+
+    #[test]
+    fn catmull_rom_keeps_a_one_pixel_line_sharper_than_bilinear_without_overshoot() {
+        // a vertical line one pixel wide on a dark ground, shifted a quarter pixel sideways
+        let line = Plane::from_fn(16, 8, 1, |x, _, _| if x == 8 { 1.0 } else { 0.0 });
+        let bilinear = shifted(&line, 0.25, 0.0, Resampling::Bilinear);
+        let cubic = shifted(&line, 0.25, 0.0, Resampling::CatmullRom);
+        // the line lands at x = 7.75: pixel 8 reads 0.75 bilinear, 0.867 Catmull-Rom
+        assert!((bilinear.get(8, 4, 0) - 0.75).abs() < 1e-6);
+        assert!((cubic.get(8, 4, 0) - 0.8671875).abs() < 1e-6);
+        // the unclamped weights are negative two pixels out: clamping keeps them at 0
+        assert!(cubic.data().iter().all(|&v| (0.0..=1.0).contains(&v)));
+        // a step edge does not ring past either side
+        let step = Plane::from_fn(16, 8, 1, |x, _, _| if x < 8 { 0.1 } else { 4.0 });
+        let cubic = shifted(&step, 0.4, 0.3, Resampling::CatmullRom);
+        assert!(cubic.data().iter().all(|&v| (0.1..=4.0).contains(&v)));
+        assert!(cubic.get(3, 4, 0) == 0.1 && cubic.get(12, 4, 0) == 4.0);
     }
 
     #[test]

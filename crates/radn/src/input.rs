@@ -141,3 +141,21 @@ impl GuideArgs {
 fn parse_guide(s: &str) -> Result<GuideChoice, String> {
     Ok(GuideChoice::parse(s))
 }
+
+/// A resampling as the command line names it ([`radn_core::warp::Resampling`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum ResamplingArg {
+    /// The four nearest pixels.
+    Bilinear,
+    /// Sixteen pixels, clamped to the four nearest pixels' range.
+    CatmullRom,
+}
+
+impl From<ResamplingArg> for radn_core::warp::Resampling {
+    fn from(r: ResamplingArg) -> Self {
+        match r {
+            ResamplingArg::Bilinear => Self::Bilinear,
+            ResamplingArg::CatmullRom => Self::CatmullRom,
+        }
+    }
+}

@@ -136,13 +136,17 @@ impl NetworkDenoiser {
     pub fn new(denoiser: Denoiser, device: Device) -> Self {
         let threshold = denoiser.config.default_threshold();
         let tile = auto_tile(&denoiser);
+        let resampling = denoiser.config.resampling;
         Self {
             denoiser,
             threshold,
             tile,
             batch: 1,
             device,
-            align: AlignParams::default(),
+            align: AlignParams {
+                resampling,
+                ..AlignParams::default()
+            },
             color_confidence: None,
             refine: None,
             warp_stem_features: true,

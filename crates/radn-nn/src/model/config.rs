@@ -1,6 +1,7 @@
 //! Network configuration: plain TOML, the same format for built-in presets and user files,
 //! stored inside every model file so that the file alone is enough to run it.
 
+use radn_core::warp::Resampling;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
@@ -133,6 +134,12 @@ pub struct NetConfig {
     /// ResNet backbones with RA blocks only.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub frame_local_stem: bool,
+    /// How alignment samples the side frames between pixels
+    /// ([`radn_core::warp::Resampling`]): the network learns from windows aligned this way
+    /// (`radn prepare --resampling`), and inference aligns the same way unless told otherwise.
+    /// Absent: bilinear, as every model before it.
+    #[serde(default, skip_serializing_if = "Resampling::is_bilinear")]
+    pub resampling: Resampling,
     /// Optional input features beyond the base ones ([`INPUT_CHANNELS`]): exposure
     /// normalisation and a per-pixel noise estimate. Absent in models from before them.
     #[serde(default, skip_serializing_if = "InputConfig::is_base")]

@@ -21,6 +21,7 @@ use radn_core::frame::{FrameReader, Requirements};
 use radn_core::guide::{GuideChoice, JobGuides, OidnGuides};
 use radn_core::mapping::ChannelMapping;
 use radn_core::sequence::{scene_folders, SequencePattern};
+use radn_core::warp::Resampling;
 use radn_core::window::WindowReader;
 use serde::{Deserialize, Serialize};
 
@@ -69,12 +70,16 @@ pub struct PrepareOptions {
     /// stored windows, so a guided network can train on windows aligned as `radn denoise
     /// --guide-confidence` aligns them; `None`: the geometric terms alone.
     pub guide_confidence: Option<f32>,
+    /// How alignment samples the side frames between pixels; a network trains on tiles
+    /// prepared the way its description says inference aligns
+    /// ([`crate::model::config::NetConfig::resampling`]).
+    pub resampling: Resampling,
 }
 
 impl PrepareOptions {
     /// `tiles_per_window` tiles of `tile` px per 5-frame window at positions seeded by `seed`,
     /// the default pseudo-reference level, no guide, and the geometric terms of alignment alone;
-    /// the rest is set by struct update.
+    /// bilinear resampling; the rest is set by struct update.
     pub fn new(tile: usize, tiles_per_window: usize, seed: u64) -> Self {
         Self {
             tile,
@@ -85,6 +90,7 @@ impl PrepareOptions {
             guide: GuideChoice::None,
             oidn_threads: 0,
             guide_confidence: None,
+            resampling: Resampling::Bilinear,
         }
     }
 }
@@ -134,6 +140,10 @@ pub struct Manifest {
     /// ([`PrepareOptions::guide_confidence`]); none without it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub guide_confidence: Option<f32>,
+    /// How the windows' side frames were sampled ([`PrepareOptions::resampling`]); absent in
+    /// tile sets from before it: bilinear.
+    #[serde(default, skip_serializing_if = "Resampling::is_bilinear")]
+    pub resampling: Resampling,
 }
 
 /// One training tile.
@@ -197,7 +207,10 @@ pub fn prepare(
         GuideChoice::Oidn => Some(std::sync::Arc::new(OidnGuides::new(opts.oidn_threads)?)),
         _ => None,
     };
-    let mut align = AlignParams::default();
+    let mut align = AlignParams {
+        resampling: opts.resampling,
+        ..AlignParams::default()
+    };
     align.confidence.guide = opts.guide_confidence.filter(|_| guided);
     let mut writer = ShardWriter::new(out, rb);
     let mut with_pseudo = 0;
@@ -329,6 +342,7 @@ pub fn prepare(
             GuideChoice::Layer(l) => Some(l.clone()),
         },
         guide_confidence: align.confidence.guide,
+        resampling: opts.resampling,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;

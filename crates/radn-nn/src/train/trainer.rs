@@ -485,6 +485,20 @@ impl Trainer {
                 }
             }
         }
+        for (name, set) in [(&config.train, &train), (&config.val, &val)] {
+            if set.manifest.resampling != net_cfg.resampling {
+                return Err(NnError::Tiles {
+                    path: base.join(name),
+                    detail: format!(
+                        "their windows were aligned with {} resampling and the network \
+                         aligns with {}: prepare them with `radn prepare --resampling {}`",
+                        set.manifest.resampling.name(),
+                        net_cfg.resampling.name(),
+                        net_cfg.resampling.name()
+                    ),
+                });
+            }
+        }
         if net_cfg.inputs.guide {
             for (name, set) in [(&config.train, &train), (&config.val, &val)] {
                 if set.manifest.guide.is_none() {

@@ -127,6 +127,12 @@ pub struct Args {
     /// alone.
     #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_confidence_term)]
     pub color_confidence: ConfidenceTerm,
+    /// Network: how alignment samples the side frames between pixels, `bilinear` or
+    /// `catmull-rom` (keeps one-pixel detail through subpixel motion). Default: the way the
+    /// model was trained (its description's `resampling`); another way feeds it windows it
+    /// never saw.
+    #[arg(long, value_enum)]
+    pub resampling: Option<crate::input::ResamplingArg>,
     /// Network, with --input-blend: radius of the box the change and the noise are compared over.
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
@@ -348,6 +354,9 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         ConfidenceTerm::Auto => {}
         ConfidenceTerm::Tolerance(tol) => n.color_confidence = Some(tol),
         ConfidenceTerm::Off => n.color_confidence = None,
+    }
+    if let Some(r) = a.resampling {
+        n.align.resampling = r.into();
     }
     Ok(n)
 }

@@ -37,6 +37,11 @@ pub struct Args {
     /// (the default here, as every shipped model's tiles were made): the geometric terms alone.
     #[arg(long, value_name = "off|TOL", default_value = "off", value_parser = parse_tolerance)]
     pub guide_confidence: Tolerance,
+    /// How alignment samples the side frames between pixels: `bilinear` (every shipped model's
+    /// tiles) or `catmull-rom` (keeps one-pixel detail through subpixel motion). A network
+    /// trains only on tiles prepared the way its description's `resampling` says.
+    #[arg(long, value_enum, default_value_t = crate::input::ResamplingArg::Bilinear)]
+    pub resampling: crate::input::ResamplingArg,
 }
 
 /// `--guide-confidence`'s value: a tolerance, `None` for `off`.
@@ -63,6 +68,7 @@ pub fn run(a: Args) -> Result<()> {
         guide: a.guide.guide.clone(),
         oidn_threads: a.guide.oidn_threads,
         guide_confidence: a.guide_confidence.0,
+        resampling: a.resampling.into(),
         ..PrepareOptions::new(a.tile, a.tiles_per_window, a.seed)
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {

@@ -34,6 +34,10 @@ pub struct Args {
     /// Do not blend low-confidence pixels towards the centre frame.
     #[arg(long)]
     pub no_mix: bool,
+    /// How the side frames are sampled between pixels (`radn denoise` aligns as its model
+    /// was trained: bilinear for every shipped model).
+    #[arg(long, value_enum, default_value_t = crate::input::ResamplingArg::Bilinear)]
+    pub resampling: crate::input::ResamplingArg,
     #[command(flatten)]
     pub channels: ChannelArgs,
 }
@@ -55,6 +59,7 @@ pub fn run(a: Args) -> Result<()> {
     }
     let params = AlignParams {
         mix_centre: !a.no_mix,
+        resampling: a.resampling.into(),
         ..AlignParams::default()
     };
     let win = windows.aligned(pos, &params)?;
