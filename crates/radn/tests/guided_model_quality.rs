@@ -36,7 +36,9 @@ const GATES: [(&str, f64, f64, f64); 3] = [
 /// guide mix and its outlier ramp, measured 32.47 / 34.51 / 36.82 dB and tMAE 0.0176 / 0.0145 /
 /// 0.0115 (0.90 / 0.94 / 0.97 of OIDN's); 1.05 / 1.34 / 1.63 dB over the stage-7 default. With
 /// the guide confidence (the default since 2026-12-04) 32.46 / 34.51 / 36.83 dB and 0.0177 /
-/// 0.0145 / 0.0115; the large model 32.52 / 34.47 / 36.73 dB.
+/// 0.0145 / 0.0115; the large model 32.52 / 34.47 / 36.73 dB. Retrained for Catmull-Rom
+/// resampling (the weights since 2026-12-04) 32.53 / 34.50 / 36.81 dB and 0.0175 / 0.0145 /
+/// 0.0114.
 /// Without the ramp it was 32.45 / 34.51 / 36.78 dB; without the mix 32.30 / 34.28 / 36.08 dB,
 /// 0.58 dB behind OIDN at 32 spp.
 const LEAN_GATES: [(&str, f64, f64, f64); 3] = [
