@@ -424,7 +424,7 @@ impl NetworkDenoiser {
         let (win, scales) = self.align_for_centre(window);
         let stems = self
             .reuses_frame_layers()
-            .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
+            .then(|| WindowStems::new(window, &win, self.align.resampling, |f| self.frame_stem(f)));
         self.utilization_with(&win, stems.as_ref(), scales)
     }
 
@@ -663,7 +663,7 @@ impl WindowDenoiser for NetworkDenoiser {
         let (win, scales) = timed(Stage::Align, || self.align_for_centre(window));
         let stems = self
             .reuses_frame_layers()
-            .then(|| WindowStems::new(window, &win, |f| self.frame_stem(f)));
+            .then(|| WindowStems::new(window, &win, self.align.resampling, |f| self.frame_stem(f)));
         let h = win.centre().color.height();
         let out = self.denoise_rows(&win, stems.as_ref(), scales, 0..h);
         log_stages(
@@ -1134,7 +1134,7 @@ mod tests {
         let mut head = burn::nn::conv::Conv2dConfig::new([c, 1], [3, 3])
             .with_padding(burn::nn::PaddingConfig2d::Same)
             .init(&device);
-        let weights: Vec<f32> = (0..c * 9).map(|i| 0.2 * (i as f32 * 1.7).sin()).collect();
+        let weights: Vec<f32> = (0..c * 9).map(|i| 0.3 * (i as f32 * 1.7).sin()).collect();
         head.weight = burn::module::Param::from_tensor(Tensor::from_data(
             TensorData::new(weights, [1, c, 3, 3]),
             &device,

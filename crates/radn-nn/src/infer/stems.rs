@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex};
 use radn_core::align::AlignedWindow;
 use radn_core::banding::Band;
 use radn_core::frame::Frame;
-use radn_core::warp::{mix_with_centre, warp_bands};
+use radn_core::warp::{mix_with_centre, warp_bands_with, Resampling};
 use radn_core::Plane;
 
 /// One side frame's features and the alignment that brings them onto the centre frame.
@@ -28,6 +28,8 @@ pub struct WindowStems<'a> {
     /// nothing of which is trusted (beyond the sequence ends), which take the centre's.
     sides: Vec<Option<Side<'a>>>,
     centre: Cow<'a, Plane>,
+    /// How the features are sampled between pixels: as alignment sampled the inputs.
+    resampling: Resampling,
     /// The last band asked for, kept while a row of tiles reads it.
     last: Mutex<Option<WarpedBand>>,
 }
@@ -36,11 +38,13 @@ pub struct WindowStems<'a> {
 type WarpedBand = (Range<usize>, Arc<Vec<Plane>>);
 
 impl<'a> WindowStems<'a> {
-    /// The stems of `window` (its frames; `None` beyond the sequence ends) aligned as `win`:
-    /// each frame's [`Frame::features`] where it has them, `compute(frame)` where it has not.
+    /// The stems of `window` (its frames; `None` beyond the sequence ends) aligned as `win`
+    /// with `resampling`: each frame's [`Frame::features`] where it has them, `compute(frame)`
+    /// where it has not.
     pub fn new(
         window: &[Option<&'a Frame>],
         win: &'a AlignedWindow,
+        resampling: Resampling,
         compute: impl Fn(&Frame) -> Plane,
     ) -> Self {
         let own = |f: &'a Frame| -> Cow<'a, Plane> {
@@ -70,6 +74,7 @@ impl<'a> WindowStems<'a> {
         Self {
             sides,
             centre,
+            resampling,
             last: Mutex::new(None),
         }
     }
@@ -102,9 +107,10 @@ impl<'a> WindowStems<'a> {
                         y0: rows.start,
                         full_height,
                     };
-                    let mut warped = warp_bands(&[Band::whole(&s.features)], band)
-                        .pop()
-                        .expect("one plane in, one out");
+                    let mut warped =
+                        warp_bands_with(&[Band::whole(&s.features)], band, self.resampling)
+                            .pop()
+                            .expect("one plane in, one out");
                     mix_with_centre(&mut warped, &centre, &s.confidence.rows(rows.clone()));
                     warped
                 }

@@ -37,9 +37,10 @@ pub struct Args {
     /// (the default here, as every shipped model's tiles were made): the geometric terms alone.
     #[arg(long, value_name = "off|TOL", default_value = "off", value_parser = parse_tolerance)]
     pub guide_confidence: Tolerance,
-    /// How alignment samples the side frames between pixels: `bilinear` (every shipped model's
-    /// tiles) or `catmull-rom` (keeps one-pixel detail through subpixel motion). A network
-    /// trains only on tiles prepared the way its description's `resampling` says.
+    /// How alignment samples the side frames between pixels: `bilinear` (the default model's
+    /// tiles) or `catmull-rom` (keeps one-pixel detail through subpixel motion; the compiled-in
+    /// guided model's). A network trains only on tiles prepared the way its description's
+    /// `resampling` says.
     #[arg(long, value_enum, default_value_t = crate::input::ResamplingArg::Bilinear)]
     pub resampling: crate::input::ResamplingArg,
 }

@@ -35,7 +35,7 @@ pub struct Args {
     #[arg(long)]
     pub no_mix: bool,
     /// How the side frames are sampled between pixels (`radn denoise` aligns as its model
-    /// was trained: bilinear for every shipped model).
+    /// was trained: catmull-rom for the compiled-in guided model, bilinear for the default).
     #[arg(long, value_enum, default_value_t = crate::input::ResamplingArg::Bilinear)]
     pub resampling: crate::input::ResamplingArg,
     #[command(flatten)]
