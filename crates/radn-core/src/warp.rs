@@ -78,26 +78,19 @@ impl Resampling {
     }
 }
 
-/// [`warp_band`] of several planes of one frame band along one flow: each pixel's bilinear
-/// taps and weights are computed once for every channel of every plane (the values equal
-/// warping each plane alone, bit for bit). A side frame's alignment warps some twenty channels
-/// (colour, albedo, normal, their prefiltered guides, alpha, AOVs, the guide) along one flow.
+/// [`warp_band`] of several planes of one frame band along one flow, sampled with
+/// `resampling`: each pixel's taps and weights are computed once for every channel of every
+/// plane (bilinear values equal warping each plane alone with [`warp_band`], bit for bit). A
+/// side frame's alignment warps some twenty channels (colour, albedo, normal, their prefiltered
+/// guides, alpha, AOVs, the guide) along one flow. The sources must hold the rows the flow
+/// reaches, rounded out to whole rows, and one more on each side: a lookup reads with a
+/// non-zero weight no farther (Catmull-Rom's second row below a position lies beyond the
+/// rounded reach only where the position is a whole row short of it).
 ///
 /// # Panics
 /// When the planes are not bands of one size and position in one frame, or differ from the
 /// flow in width.
-pub fn warp_bands(srcs: &[Band], flow: Band) -> Vec<Plane> {
-    warp_bands_with(srcs, flow, Resampling::Bilinear)
-}
-
-/// [`warp_bands`] with the given resampling. The sources must hold the rows the flow reaches,
-/// rounded out to whole rows, and one more on each side: a lookup reads with a non-zero weight
-/// no farther (Catmull-Rom's second row below a position lies beyond the rounded reach only
-/// where the position is a whole row short of it).
-///
-/// # Panics
-/// As [`warp_bands`].
-pub fn warp_bands_with(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plane> {
+pub fn warp_bands(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plane> {
     let (w, h) = (flow.plane.width(), flow.plane.height());
     let Some(first) = srcs.first() else {
         return Vec::new();
@@ -334,7 +327,7 @@ mod tests {
                 }
             },
         );
-        warp_bands_with(&[Band::whole(src)], Band::whole(&flow), resampling).remove(0)
+        warp_bands(&[Band::whole(src)], Band::whole(&flow), resampling).remove(0)
     }
 
     #[test]
@@ -403,14 +396,14 @@ mod tests {
             y0: 6,
             full_height: full_h,
         };
-        let together = warp_bands(&[band(&a), band(&b)], flow_band);
+        let together = warp_bands(&[band(&a), band(&b)], flow_band, Resampling::Bilinear);
         assert_eq!(together.len(), 2);
         for (got, src) in together.iter().zip([&a, &b]) {
             let alone = warp_band(band(src), flow_band);
             assert_eq!(got.channels(), src.channels());
             assert_eq!(got.data(), alone.data());
         }
-        assert!(warp_bands(&[], flow_band).is_empty());
+        assert!(warp_bands(&[], flow_band, Resampling::CatmullRom).is_empty());
     }
 
     #[test]

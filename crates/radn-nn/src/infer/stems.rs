@@ -12,7 +12,7 @@ use std::sync::{Arc, Mutex};
 use radn_core::align::AlignedWindow;
 use radn_core::banding::Band;
 use radn_core::frame::Frame;
-use radn_core::warp::{mix_with_centre, warp_bands_with, Resampling};
+use radn_core::warp::{mix_with_centre, warp_bands, Resampling};
 use radn_core::Plane;
 
 /// One side frame's features and the alignment that brings them onto the centre frame.
@@ -107,10 +107,9 @@ impl<'a> WindowStems<'a> {
                         y0: rows.start,
                         full_height,
                     };
-                    let mut warped =
-                        warp_bands_with(&[Band::whole(&s.features)], band, self.resampling)
-                            .pop()
-                            .expect("one plane in, one out");
+                    let mut warped = warp_bands(&[Band::whole(&s.features)], band, self.resampling)
+                        .pop()
+                        .expect("one plane in, one out");
                     mix_with_centre(&mut warped, &centre, &s.confidence.rows(rows.clone()));
                     warped
                 }
