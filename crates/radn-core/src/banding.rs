@@ -258,6 +258,18 @@ impl FrameStats {
     /// Reads a frame band by band (`rows` rows at a time, one opening of the file per band)
     /// and gathers its statistics.
     pub fn gather(reader: &FrameReader, path: &Path, height: usize, rows: usize) -> Result<Self> {
+        Self::gather_with(reader, path, height, rows, |_, _| Ok(()))
+    }
+
+    /// [`FrameStats::gather`] that also hands each band read, with its first row, to `band`
+    /// (the sequence job keeps the decoded rows: [`crate::row_store::FrameStore`]).
+    pub fn gather_with(
+        reader: &FrameReader,
+        path: &Path,
+        height: usize,
+        rows: usize,
+        mut each_band: impl FnMut(usize, &Frame) -> Result<()>,
+    ) -> Result<Self> {
         let first = reader.read_rows(path, 0..rows.max(1).min(height))?;
         let mut stats = FrameStats {
             reach: MotionReach::default(),
@@ -282,6 +294,7 @@ impl FrameStats {
             stats
                 .noise
                 .add_rows(&band.color, band.albedo.as_ref(), 0..band.height());
+            each_band(y0, &band)?;
         }
         Ok(stats)
     }

@@ -14,6 +14,7 @@ use exr::meta::attribute::{LevelMode, LineOrder, SampleType, TileDescription};
 use exr::meta::header::Header;
 use exr::meta::{BlockDescription, MetaData};
 use half::f16;
+use rayon::prelude::*;
 
 use crate::denoiser::Denoised;
 use crate::error::{Error, Result};
@@ -270,7 +271,7 @@ fn write_blocks<W: ChunksWriter>(
     };
     let mut pending: Vec<(usize, UncompressedBlock)> = Vec::new();
     filtered
-        .decompress_sequential(false, |_, block| {
+        .decompress_parallel(false, |_, block| {
             let index = block.index;
             let in_h = &in_headers[index.layer];
             let out_h = &out_meta.headers[index.layer];
@@ -318,15 +319,17 @@ fn write_blocks<W: ChunksWriter>(
             detail: format!("{} of its blocks are missing", ready.len() - pending.len()),
         });
     }
-    // each part's blocks in increasing y, as the headers promise
+    // each part's blocks in increasing y, as the headers promise; compressed in parallel
     pending.sort_by_key(|(i, b)| (b.index.layer, *i));
-    for (i, block) in pending {
-        let chunk = block
-            .compress_to_chunk(&out_meta.headers)
-            .map_err(|e| Error::Encode {
-                path: input.to_path_buf(),
-                detail: describe_exr_error(e),
-            })?;
+    let compressed: Vec<(usize, exr::error::Result<exr::block::chunk::Chunk>)> = pending
+        .into_par_iter()
+        .map(|(i, block)| (i, block.compress_to_chunk(&out_meta.headers)))
+        .collect();
+    for (i, chunk) in compressed {
+        let chunk = chunk.map_err(|e| Error::Encode {
+            path: input.to_path_buf(),
+            detail: describe_exr_error(e),
+        })?;
         chunks.write_chunk(i, chunk).map_err(|e| Error::Encode {
             path: input.to_path_buf(),
             detail: describe_exr_error(e),

@@ -56,6 +56,15 @@ pub trait WindowDenoiser: Sync {
     }
 }
 
+/// The shape of a band denoiser's per-frame features ([`BandDenoiser::band_features`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BandFeatures {
+    /// Channels of the features.
+    pub channels: usize,
+    /// Rows beyond a band's own rows that computing its features reads.
+    pub halo: usize,
+}
+
 /// A method that denoises a frame band by band from bands of its window, with exactly the
 /// result of denoising whole frames (the network: its receptive field is finite, and aligning
 /// a band needs only the rows the motion reaches).
@@ -64,8 +73,29 @@ pub trait BandDenoiser: Sync {
     fn band_rows(&self) -> usize;
     /// Rows of the centre frame beyond a band's output rows that denoising the band reads.
     fn halo(&self) -> usize;
+    /// The shape of the method's per-frame features ([`WindowDenoiser::frame_features`] in
+    /// band-by-band form), `None` when it has none (the default). The sequence job computes
+    /// them band by band when a frame first enters a window
+    /// ([`BandDenoiser::frame_band_features`]), keeps them on disk
+    /// ([`crate::row_store`]) until the frame's last window is done, and gives each band
+    /// of a window the rows of them its frames' bands hold, in each band's [`Frame::features`].
+    fn band_features(&self) -> Option<BandFeatures> {
+        None
+    }
+    /// The per-frame features of rows `out` (band-local) of `band`, a band of a frame whose
+    /// whole-frame statistics are `stats`, holding [`BandFeatures::halo`] rows beyond `out`
+    /// where the frame has them. `None` for a method without per-frame features.
+    fn frame_band_features(
+        &self,
+        _band: FrameBand,
+        _out: Range<usize>,
+        _stats: &FrameStats,
+    ) -> Option<Plane> {
+        None
+    }
     /// Denoises rows `out` (band-local) of the centre band of `window`, whose bands hold the
-    /// rows [`crate::banding::window_band_rows`] gives; `centre` describes the whole centre frame.
+    /// rows [`crate::banding::window_band_rows`] gives (and the same rows of the per-frame
+    /// features, where the method has them); `centre` describes the whole centre frame.
     fn denoise_band(
         &self,
         window: &[Option<FrameBand>],

@@ -101,6 +101,14 @@ pub enum Error {
         source: std::io::Error,
     },
 
+    /// A temporary file of the run (a frame's per-frame features kept on disk) failed.
+    #[error("'{path}': {detail}: {source}")]
+    Scratch {
+        path: PathBuf,
+        detail: String,
+        source: std::io::Error,
+    },
+
     /// Encoding the output EXR failed.
     #[error("cannot encode EXR '{path}': {detail}")]
     Encode { path: PathBuf, detail: String },

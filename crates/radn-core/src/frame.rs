@@ -89,7 +89,8 @@ pub struct Frame {
     pub aovs: Vec<Aov>,
     /// A per-frame spatial estimate of the beauty (RGB) that steers a guided network: the
     /// renderer's denoised layer or Intel Open Image Denoise's result ([`crate::guide`]).
-    /// Never read by [`FrameReader`] itself; a sequence job attaches it.
+    /// Read by [`FrameReader`] from a layer of the file ([`FrameReader::guide`]), or attached
+    /// by a sequence job (Intel Open Image Denoise).
     pub guide: Option<Plane>,
     /// Per-frame features a denoising method computed once for this frame in
     /// [`crate::denoiser::WindowDenoiser::frame_features`] (a network's per-frame layers), so that the

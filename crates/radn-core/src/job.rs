@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use crate::align::window_indices;
 use crate::banding::{
-    frame_bands, hop_reach, window_band_rows, FrameStats, MotionReach, STATS_ROWS,
+    frame_bands, hop_reach, window_band_rows, FrameBand, FrameStats, MotionReach, STATS_ROWS,
 };
 use crate::denoised_output::{write_banded, write_result};
 use crate::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
@@ -22,7 +22,41 @@ use crate::guide::JobGuides;
 use crate::output::{ensure_not_input, ensure_writable_dir};
 use crate::output_locks::OutputClaim;
 use crate::plane::Plane;
+use crate::row_store::{FrameStore, RowStore};
 use crate::window::WindowReader;
+
+/// Whether frames are denoised band by band, where the method can
+/// ([`WindowDenoiser::banded`]). Band by band, memory follows the band, not the frame; whole
+/// frames are decoded once each and kept while their windows need them, which is faster
+/// (about 10% at 1080p, `docs/benchmarks.md`, "Peak memory") and takes memory in proportion
+/// to the frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Bands {
+    /// Band by band for frames of more than [`AUTO_BAND_PIXELS`] pixels, whole frames for
+    /// smaller ones.
+    #[default]
+    Auto,
+    /// Band by band whatever the frame's size.
+    Always,
+    /// Whole frames whatever their size.
+    Never,
+}
+
+/// The frame size above which [`Bands::Auto`] goes band by band: 2.5 megapixels, so 1080p
+/// and 2K frames run whole (about 2 GB with the default model) and larger ones band by band
+/// (about 1 GB at 1080p, growing only with the frame's width).
+pub const AUTO_BAND_PIXELS: usize = 2_500_000;
+
+impl Bands {
+    /// Whether frames of `width` × `height` go band by band.
+    pub fn for_frame(self, width: usize, height: usize) -> bool {
+        match self {
+            Bands::Auto => width * height > AUTO_BAND_PIXELS,
+            Bands::Always => true,
+            Bands::Never => false,
+        }
+    }
+}
 
 /// One sequence to denoise.
 pub struct SequenceJob {
@@ -43,6 +77,8 @@ pub struct SequenceJob {
     /// the noisy beauty ([`Frame::denoised_channels`]): on for outputs, off for the scratch
     /// files between passes, so later passes still find the renderer's guide there.
     pub replace_denoised: bool,
+    /// Whether a method that can goes band by band.
+    pub bands: Bands,
 }
 
 /// What a run did.
@@ -149,20 +185,24 @@ impl SequenceJob {
         method: &dyn WindowDenoiser,
         progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
-        let (_, height) = self.validate()?;
-        self.run_validated(method, height, progress)
+        let size = self.validate()?;
+        self.run_validated(method, size, progress)
     }
 
     /// [`SequenceJob::run`] for a job whose [`SequenceJob::validate`] has passed (its frames
-    /// `height` rows tall): a run of several passes checks the whole run once, not each pass.
+    /// of `size`, width and height): a run of several passes checks the whole run once, not
+    /// each pass.
     pub(crate) fn run_validated(
         &self,
         method: &dyn WindowDenoiser,
-        height: usize,
+        size: (usize, usize),
         mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
-        if let Some(banded) = method.banded() {
-            return self.run_banded(method.radius(), banded, height, progress);
+        if let Some(banded) = method
+            .banded()
+            .filter(|_| self.bands.for_frame(size.0, size.1))
+        {
+            return self.run_banded(method.radius(), banded, size, progress);
         }
         let n = self.inputs.len();
         let r = method.radius();
@@ -257,7 +297,7 @@ impl SequenceJob {
         &self,
         r: usize,
         method: &dyn BandDenoiser,
-        height: usize,
+        (width, height): (usize, usize),
         mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
         let n = self.inputs.len();
@@ -265,6 +305,10 @@ impl SequenceJob {
         let mut stats: BTreeMap<usize, FrameStats> = BTreeMap::new();
         // whole-frame OIDN guides of the frames in the windows in flight (computed once each)
         let mut oidn: BTreeMap<usize, Plane> = BTreeMap::new();
+        // the decoded rows and the method's per-frame features of the frames in the windows in
+        // flight, on disk
+        let mut decoded: BTreeMap<usize, FrameStore> = BTreeMap::new();
+        let mut features: BTreeMap<usize, RowStore> = BTreeMap::new();
         let band = method.band_rows().max(1);
         let halo = method.halo();
         let frames = self.output_count();
@@ -279,10 +323,24 @@ impl SequenceJob {
             let gathering = Instant::now();
             for &k in idx.iter().flatten() {
                 if let std::collections::btree_map::Entry::Vacant(e) = stats.entry(k) {
-                    let s =
-                        FrameStats::gather(&self.reader, &self.inputs[k].1, height, STATS_ROWS)?;
+                    // one decoding of the frame: its statistics, and its rows kept for its bands
+                    let mut store: Option<FrameStore> = None;
+                    let s = FrameStats::gather_with(
+                        &self.reader,
+                        &self.inputs[k].1,
+                        height,
+                        STATS_ROWS,
+                        |y0, band| {
+                            let store = match &mut store {
+                                Some(s) => s,
+                                None => store.insert(FrameStore::new(band, height)?),
+                            };
+                            store.write(y0, band)
+                        },
+                    )?;
                     report.repaired += s.repaired;
                     e.insert(s);
+                    decoded.insert(k, store.expect("a frame has rows"));
                 }
             }
             if let JobGuides::Oidn { guides, originals } = &self.guides {
@@ -293,6 +351,52 @@ impl SequenceJob {
                 }
             }
             let gathering = gathering.elapsed();
+            // rows `rows` of window frame k, with its guide's rows and, once they exist, its
+            // per-frame features' rows
+            let read_band = |k: usize,
+                             rows: Range<usize>,
+                             features: &BTreeMap<usize, RowStore>|
+             -> Result<Frame> {
+                let mut f = decoded[&k].read(rows.clone())?;
+                if let Some(g) = oidn.get(&k) {
+                    f.guide = Some(g.rows(rows.clone()));
+                }
+                if let Some(store) = features.get(&k) {
+                    let mut planes = store.read_rows(rows)?;
+                    f.features = planes.pop();
+                }
+                Ok(f)
+            };
+            let computing = Instant::now();
+            if let Some(shape) = method.band_features() {
+                for &k in idx.iter().flatten() {
+                    if features.contains_key(&k) {
+                        continue;
+                    }
+                    let path = &self.inputs[k].1;
+                    let store = RowStore::new(path, width, height, vec![shape.channels])?;
+                    for y0 in (0..height).step_by(band) {
+                        let out = y0..(y0 + band).min(height);
+                        let rows =
+                            y0.saturating_sub(shape.halo)..(out.end + shape.halo).min(height);
+                        let crop = read_band(k, rows.clone(), &features)?;
+                        let f = method
+                            .frame_band_features(
+                                FrameBand {
+                                    frame: &crop,
+                                    y0: rows.start,
+                                    full_height: height,
+                                },
+                                out.start - rows.start..out.end - rows.start,
+                                &stats[&k],
+                            )
+                            .expect("a method with per-frame features computes them");
+                        store.write_rows(out.start, &[&f])?;
+                    }
+                    features.insert(k, store);
+                }
+            }
+            let computing = computing.elapsed();
             let reach: Vec<Option<MotionReach>> =
                 idx.iter().map(|i| i.map(|k| stats[&k].reach)).collect();
             let hops = hop_reach(&reach);
@@ -305,16 +409,7 @@ impl SequenceJob {
                 let crops = idx
                     .iter()
                     .zip(&rows)
-                    .map(|(i, rows)| {
-                        i.map(|k| {
-                            let mut f = self.reader.read_rows(&self.inputs[k].1, rows.clone())?;
-                            if let Some(g) = oidn.get(&k) {
-                                f.guide = Some(g.rows(rows.clone()));
-                            }
-                            Ok(f)
-                        })
-                        .transpose()
-                    })
+                    .map(|(i, rows)| i.map(|k| read_band(k, rows.clone(), &features)).transpose())
                     .collect::<Result<Vec<Option<Frame>>>>()?;
                 let bands = frame_bands(&crops, &rows, height);
                 reading += t.elapsed();
@@ -341,17 +436,21 @@ impl SequenceJob {
             let total = started.elapsed();
             tracing::debug!(
                 "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s \
-                 (and {:.1} s before, for the statistics pass of the frames new to this window)",
+                 (and {:.1} s before, for the statistics pass of the frames new to this window, \
+                 and {:.1} s for their per-frame features)",
                 output.display(),
                 total.as_secs_f64(),
                 reading.as_secs_f64(),
                 denoising.as_secs_f64(),
                 (total - reading - denoising).as_secs_f64(),
-                gathering.as_secs_f64()
+                gathering.as_secs_f64(),
+                computing.as_secs_f64()
             );
             report.written += 1;
             stats.retain(|&k, _| k + r > pos);
+            decoded.retain(|&k, _| k + r > pos);
             oidn.retain(|&k, _| k + r > pos);
+            features.retain(|&k, _| k + r > pos);
             progress((done + 1) as f64, frames);
         }
         Ok(report)

@@ -9,7 +9,9 @@
 //! - Guides for guided networks: the renderer's denoised layer or Intel Open Image Denoise
 //!   per frame ([`guide`]).
 //! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
-//!   ([`classic`]), whole sequences ([`job`]) and runs of several passes ([`passes`]).
+//!   ([`classic`]), whole sequences ([`job`]; band by band, decoded frames and per-frame
+//!   features kept on disk between a frame's windows: [`row_store`]) and runs of several
+//!   passes ([`passes`]).
 //! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]), metrics with the
 //!   reference's own noise taken out ([`reference_noise`]) and the HTML report ([`report`]);
 //!   throughput of the data path ([`mod@bench`]).
@@ -39,6 +41,7 @@ pub mod passes;
 pub mod plane;
 pub mod reference_noise;
 pub mod report;
+pub mod row_store;
 pub mod sequence;
 pub mod warp;
 pub mod window;

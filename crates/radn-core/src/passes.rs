@@ -11,7 +11,7 @@ use crate::error::{Error, Result};
 use crate::exr_file::SampleKind;
 use crate::frame::FrameReader;
 use crate::guide::{JobGuides, OidnGuides};
-use crate::job::{JobReport, SequenceJob};
+use crate::job::{Bands, JobReport, SequenceJob};
 use crate::sequence::SequencePattern;
 
 /// Chosen frames of a sequence to denoise into an output pattern, in `passes` passes.
@@ -33,6 +33,8 @@ pub struct DenoiseRun {
     /// Intel Open Image Denoise guides, computed from the original inputs in every pass
     /// (a guide layer is read by `reader`; scratch files between passes keep it as it was).
     pub oidn: Option<std::sync::Arc<OidnGuides>>,
+    /// Whether a method that can goes band by band.
+    pub bands: Bands,
 }
 
 /// Where a run is: pass `pass` of `passes` has written `done` (fractional while a frame is in
@@ -96,11 +98,12 @@ impl DenoiseRun {
                 },
                 guides,
                 replace_denoised: last,
+                bands: self.bands,
             }
         };
         // the whole run is checked first, also one with nothing left to do: an output that is
         // an input under another spelling of its path is refused, not counted as done
-        let (_, height) = job(inputs.clone(), outputs.clone(), true).validate()?;
+        let size = job(inputs.clone(), outputs.clone(), true).validate()?;
         // a finished run (every output there) does no work, however many passes
         if !self.overwrite && outputs.iter().flatten().all(|o| o.exists()) {
             return Ok(JobReport {
@@ -177,7 +180,7 @@ impl DenoiseRun {
                 frames,
             });
             // every input was checked above, and earlier passes' results are radn's own
-            let r = job.run_validated(method, height, |done, _| {
+            let r = job.run_validated(method, size, |done, _| {
                 progress(PassProgress {
                     pass,
                     passes,

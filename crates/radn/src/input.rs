@@ -159,3 +159,25 @@ impl From<ResamplingArg> for radn_core::warp::Resampling {
         }
     }
 }
+
+/// When frames are denoised band by band, as the command line names it
+/// ([`radn_core::job::Bands`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum BandsArg {
+    /// Band by band for frames of more than 2.5 megapixels, whole frames for smaller ones.
+    Auto,
+    /// Band by band whatever the frame's size: memory follows the band.
+    Always,
+    /// Whole frames whatever their size: memory follows the frame.
+    Never,
+}
+
+impl From<BandsArg> for radn_core::job::Bands {
+    fn from(b: BandsArg) -> Self {
+        match b {
+            BandsArg::Auto => Self::Auto,
+            BandsArg::Always => Self::Always,
+            BandsArg::Never => Self::Never,
+        }
+    }
+}

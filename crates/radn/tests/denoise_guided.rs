@@ -78,6 +78,8 @@ fn the_renderers_denoised_layer_guides_the_noisy_one_and_bands_equal_whole_frame
             guide,
             "--tile",
             tile,
+            "--bands",
+            "always",
             "--input-blend",
             "off",
         ]);
@@ -158,6 +160,8 @@ fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize, mix: &[&str
             "2",
             "--tile",
             tile,
+            "--bands",
+            "always",
         ];
         args.extend(mix);
         radn_ok(&args);

@@ -61,6 +61,8 @@ fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>, input_blend: bo
         "diffuse,specular",
         "--tile",
         "40",
+        "--bands",
+        "always",
     ];
     if input_blend {
         args.extend(["--input-blend", "2"]);
@@ -235,7 +237,16 @@ fn banded_denoising_equals_whole_frame_denoising() {
     let input = tall(d.path());
     let run = |tile: &str| {
         let out = format!("{}/t{tile}/f_####.exr", d.path().display());
-        let args = ["--method", "network", "--tile", tile, "--input-blend", "2"];
+        let args = [
+            "--method",
+            "network",
+            "--tile",
+            tile,
+            "--bands",
+            "always",
+            "--input-blend",
+            "2",
+        ];
         denoise_frames_3_to_7(&m, &input, &out, &args)
     };
     let whole = run("0");
@@ -270,7 +281,7 @@ fn the_colour_confidence_changes_clean_frames_and_bands_still_equal_whole_frames
         [4, 5].map(|f| beauty_rgb(&ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap()))
     };
     let whole = run("whole", &["--tile", "0"]);
-    let banded = run("banded", &["--tile", "32"]);
+    let banded = run("banded", &["--tile", "32", "--bands", "always"]);
     let off = run("off", &["--tile", "0", "--color-confidence", "off"]);
     let mut changed = 0;
     for ((w, b), o) in whole.iter().zip(&banded).zip(&off) {
@@ -324,7 +335,10 @@ fn the_automatic_input_blend_follows_each_frames_noise_level() {
 #[test]
 fn a_frame_local_stem_model_runs_tiled_as_whole_with_aovs_summing_to_the_beauty() {
     // the shipped default with its stem split (issue 20, point 1): the job computes each
-    // frame's stem once and warps its features into the five windows the frame belongs to
+    // frame's stem once and warps its features into the five windows the frame belongs to:
+    // whole frames (`--tile 0`, or tiles of 48 with `--bands never`) keep every frame's stem
+    // in memory; band by band (48 rows), each frame's stem is computed band by band into a
+    // scratch file and read back band by band
     let d = tempfile::tempdir().unwrap();
     let device = Device::flex();
     let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models/default.safetensors");
@@ -340,20 +354,23 @@ fn a_frame_local_stem_model_runs_tiled_as_whole_with_aovs_summing_to_the_beauty(
         denoise_frames_3_to_7(&m, &input, &out, extra)
     };
     let whole = run("whole", &["--tile", "0"]);
-    let tiled = run("tiled", &["--tile", "48"]);
+    let tiled = run("tiled", &["--tile", "48", "--bands", "never"]);
+    let banded = run("banded", &["--tile", "48", "--bands", "always"]);
     let aligned = run("aligned", &["--tile", "0", "--stem-on-aligned-frames"]);
     let (mut worst, mut apart) = (0.0f32, 0.0f32);
-    for_each_channel(&whole, &tiled, |_, x, y| {
-        for (u, v) in x.iter().zip(y) {
-            worst = worst.max((u - v).abs() / u.abs().max(1.0));
-        }
-    });
+    for other in [&tiled, &banded] {
+        for_each_channel(&whole, other, |_, x, y| {
+            for (u, v) in x.iter().zip(y) {
+                worst = worst.max((u - v).abs() / u.abs().max(1.0));
+            }
+        });
+    }
     for_each_channel(&whole, &aligned, |_, x, z| {
         for (u, w) in x.iter().zip(z) {
             apart = apart.max((u - w).abs());
         }
     });
-    assert!(worst <= 1e-5, "tiled and whole differ by {worst}");
+    assert!(worst <= 1e-5, "tiled or banded and whole differ by {worst}");
     // the stem on the aligned frames is another computation (features warped, not inputs)
     assert!(
         apart > 1e-3,

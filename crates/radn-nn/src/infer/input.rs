@@ -95,6 +95,16 @@ impl FeatureScales {
             noise_level: NoiseLevelHistogram::of_frame(color, albedo).level(),
         }
     }
+
+    /// The scales of a window whose centre frame's whole-frame statistics are `stats` (a
+    /// frame denoised band by band, [`radn_core::banding::FrameStats`]).
+    pub fn of_stats(stats: &radn_core::banding::FrameStats) -> Self {
+        Self {
+            depth: stats.mean_depth(),
+            exposure: stats.exposure(),
+            noise_level: stats.noise_level(),
+        }
+    }
 }
 
 /// Base network features of a window, `[T, INPUT_CHANNELS, H, W]` row-major: log colour,

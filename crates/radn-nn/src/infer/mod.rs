@@ -18,7 +18,7 @@ use radn_core::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
 use radn_core::classic::wiener::{
     blend, blend_weight, window_noise_variance, LOCAL_VARIANCE_RADIUS,
 };
-use radn_core::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
+use radn_core::denoiser::{BandDenoiser, BandFeatures, Denoised, WindowDenoiser};
 use radn_core::frame::Frame;
 use radn_core::Plane;
 
@@ -180,6 +180,16 @@ impl NetworkDenoiser {
     /// tile by tile with the stem's halo, so only one tile's maps exist at a time besides the
     /// result.
     pub fn frame_stem(&self, frame: &Frame) -> Plane {
+        let scales =
+            FeatureScales::of_centre(&frame.color, frame.albedo.as_ref(), frame.depth.as_ref());
+        self.frame_stem_rows(frame, scales, 0..frame.height())
+    }
+
+    /// [`NetworkDenoiser::frame_stem`] of rows `out` of `frame` (a whole frame, or a band of
+    /// one holding the stem's halo of rows beyond `out` where the frame has them) whose
+    /// whole-frame scales are `scales`: the same tiles' regions as on the whole frame, so the
+    /// same values.
+    fn frame_stem_rows(&self, frame: &Frame, scales: FeatureScales, out: Range<usize>) -> Plane {
         let (w, h) = (frame.width(), frame.height());
         let alone = AlignedWindow {
             frames: vec![radn_core::align::AlignedFrame {
@@ -195,14 +205,13 @@ impl NetworkDenoiser {
                 flow: Plane::zeros(w, h, 2),
             }],
         };
-        let scales = FeatureScales::of(&alone);
         let halo = self.denoiser.stem_radius();
         let side = if self.tile == 0 { w.max(h) } else { self.tile };
         let c = self.denoiser.stem_channels();
-        let mut out = Plane::zeros(w, h, c);
-        for y0 in (0..h).step_by(side) {
+        let mut result = Plane::zeros(w, out.len(), c);
+        for y0 in out.clone().step_by(side) {
             for x0 in (0..w).step_by(side) {
-                let (x1, y1) = ((x0 + side).min(w), (y0 + side).min(h));
+                let (x1, y1) = ((x0 + side).min(w), (y0 + side).min(out.end));
                 let r = Region {
                     x0: x0.saturating_sub(halo),
                     y0: y0.saturating_sub(halo),
@@ -222,12 +231,13 @@ impl NetworkDenoiser {
                 for ch in 0..c {
                     for y in y0..y1 {
                         let src = &stem[ch * rw * rh + (y - r.y0) * rw + (x0 - r.x0)..][..x1 - x0];
-                        out.channel_mut(ch)[y * w + x0..y * w + x1].copy_from_slice(src);
+                        let at = (y - out.start) * w;
+                        result.channel_mut(ch)[at + x0..at + x1].copy_from_slice(src);
                     }
                 }
             }
         }
-        out
+        result
     }
 
     /// Denoises rows `rows` of an aligned window (a band of a frame whose whole-frame
@@ -485,10 +495,10 @@ impl NetworkDenoiser {
         } else {
             self.denoiser.receptive_radius()
         };
+        // multi-scale kernels: regions on the coarsest scale's grid
+        let g = self.denoiser.tile_grid();
         let (tw, th) = match (halo, self.tile) {
             (Some(_), tile) if tile > 0 => {
-                // multi-scale kernels: tiles on the coarsest scale's grid
-                let g = self.denoiser.tile_grid();
                 let tile = (tile / g * g).max(g);
                 (tile.min(w), tile.min(h))
             }
@@ -500,14 +510,17 @@ impl NetworkDenoiser {
             let y1 = (y0 + th).min(rows.end);
             for x0 in (0..w).step_by(tw) {
                 let x1 = (x0 + tw).min(w);
+                // rows that start or end off the grid (a band's, or the input blend's wider
+                // rows) read from the grid row before and to the one after: the same region a
+                // whole frame's tile reads there (the halo is a multiple of the grid)
                 tiles.push(Tile {
                     x: x0..x1,
                     y: y0..y1,
                     region: Region {
                         x0: x0.saturating_sub(halo),
-                        y0: y0.saturating_sub(halo),
+                        y0: (y0 / g * g).saturating_sub(halo),
                         x1: (x1 + halo).min(w),
-                        y1: (y1 + halo).min(h),
+                        y1: (y1.div_ceil(g) * g + halo).min(h),
                     },
                 });
             }
@@ -678,26 +691,52 @@ impl WindowDenoiser for NetworkDenoiser {
 
     fn banded(&self) -> Option<&dyn BandDenoiser> {
         // tiles of a receptive field's halo make bands possible; UNets and `--tile 0` need
-        // whole frames, and multi-scale kernels too: a band's rows do not start on their grid;
-        // a frame-local stem is computed once per whole frame
-        (self.tile > 0
-            && !self.reuses_frame_layers()
-            && self.denoiser.receptive_radius().is_some()
-            && self.denoiser.tile_grid() == 1)
-            .then_some(self as _)
+        // whole frames (multi-scale kernels are banded on their grid: `band_rows`, `halo`)
+        (self.tile > 0 && self.denoiser.receptive_radius().is_some()).then_some(self as _)
     }
 }
 
 impl BandDenoiser for NetworkDenoiser {
     fn band_rows(&self) -> usize {
-        self.tile
+        // whole tiles of the coarsest kernel scale's grid, so every band starts on it
+        let g = self.denoiser.tile_grid();
+        (self.tile / g * g).max(g)
     }
 
     fn halo(&self) -> usize {
-        // the network's receptive field, and the rows banded alignment gets wrong at a cut;
-        // the refine blend reads the result and the centre frame's noise a few rows further
-        let refine = self.refine.map_or(0, |p| p.radius + LOCAL_VARIANCE_RADIUS);
-        self.denoiser.receptive_radius().unwrap_or(0) + ALIGNMENT_EDGE_ROWS + refine
+        // the network's receptive field (after the stem, where each frame's stem features are
+        // computed once and given), and the rows banded alignment gets wrong at a cut; the
+        // refine blend reads the result `p.radius` rows further, and the window's noise
+        // `LOCAL_VARIANCE_RADIUS` beyond those. With multi-scale kernels the tiles' regions
+        // start and end on the coarsest grid (`tiles`), and the halo is a multiple of it, so
+        // a band (its first row `band_rows` · i − halo) starts on the frame's grid too.
+        let g = self.denoiser.tile_grid();
+        let network = if self.reuses_frame_layers() {
+            self.denoiser.receptive_radius_after_stem()
+        } else {
+            self.denoiser.receptive_radius()
+        };
+        let refine = self
+            .refine
+            .map_or(0, |p| p.radius.div_ceil(g) * g + LOCAL_VARIANCE_RADIUS);
+        (network.unwrap_or(0) + refine + ALIGNMENT_EDGE_ROWS).div_ceil(g) * g
+    }
+
+    fn band_features(&self) -> Option<BandFeatures> {
+        self.reuses_frame_layers().then(|| BandFeatures {
+            channels: self.denoiser.stem_channels(),
+            halo: self.denoiser.stem_radius(),
+        })
+    }
+
+    fn frame_band_features(
+        &self,
+        band: FrameBand,
+        out: Range<usize>,
+        stats: &FrameStats,
+    ) -> Option<Plane> {
+        self.reuses_frame_layers()
+            .then(|| self.frame_stem_rows(band.frame, FeatureScales::of_stats(stats), out))
     }
 
     fn denoise_band(
@@ -709,11 +748,7 @@ impl BandDenoiser for NetworkDenoiser {
         self.check_guides(window.iter().flatten().map(|b| b.frame))?;
         let params = self.align_params_for(centre.noise_level());
         let win = timed(Stage::Align, || align_bands(window, &params));
-        let scales = FeatureScales {
-            depth: centre.mean_depth(),
-            exposure: centre.exposure(),
-            noise_level: centre.noise_level(),
-        };
+        let scales = FeatureScales::of_stats(centre);
         if out.start == 0 {
             if let Some(b) = self.refine {
                 tracing::debug!(
@@ -724,8 +759,11 @@ impl BandDenoiser for NetworkDenoiser {
                 );
             }
         }
+        let stems = self
+            .reuses_frame_layers()
+            .then(|| WindowStems::of_bands(window, &win, self.align.resampling));
         let band = out.clone();
-        let result = self.denoise_rows(&win, None, scales, out);
+        let result = self.denoise_rows(&win, stems.as_ref(), scales, out);
         tracing::debug!(
             frame = %centre.names.path.display(),
             rows = ?band,
@@ -857,7 +895,7 @@ mod tests {
         let halo = d.receptive_radius().unwrap();
         let frames = moving_frames(2 * halo + 70, 44, 7);
         let mut n = NetworkDenoiser::new(d, device);
-        assert!(n.has_frame_features() && n.banded().is_none());
+        assert!(n.has_frame_features() && n.band_features().is_some());
         // each frame's stem once, in tiles of 16 px (its halo is 7 px)
         n.tile = 16;
         let prepared: Vec<Frame> = frames

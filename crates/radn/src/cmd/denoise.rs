@@ -137,12 +137,19 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     pub input_blend_radius: usize,
     /// Network: output tile size in pixels (each tile gets a halo of the receptive field, so
-    /// the result does not depend on it). Frames are also read, aligned and written in bands of
-    /// this many rows, so memory follows the tile, not the frame; 0 processes whole frames.
+    /// the result does not depend on it). Band by band (`--bands`), frames are also read,
+    /// aligned and written in bands of this many rows; 0 processes whole frames.
     /// `auto`: the model's own choice, 256 for the default model and 512 for a narrow one such
     /// as guided-lean (whose tiles then recompute less halo).
     #[arg(long, default_value = "auto", value_parser = parse_tile)]
     pub tile: TileChoice,
+    /// Network with tiles: whether frames are read, aligned, denoised and written band by band
+    /// (a band is a row of tiles), so that memory follows the band, not the frame (about 1 GB
+    /// at 1080p with the default model, growing with the width only). Whole frames are about
+    /// 10% faster and take memory in proportion to the frame (about 2 GB at 1080p). `auto`:
+    /// band by band above 2.5 megapixels. The result is the same either way.
+    #[arg(long, value_enum, default_value = "auto")]
+    pub bands: crate::input::BandsArg,
     /// Network: tiles of equal size per network call. 1 is fastest on a CPU (measured in
     /// docs/benchmarks.md); larger batches hold that many tiles' activations at once.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..))]
@@ -266,6 +273,7 @@ pub fn run(a: Args) -> Result<()> {
             1
         },
         oidn,
+        bands: a.bands.into(),
     };
     let t = std::time::Instant::now();
     let mut bar: Option<(usize, indicatif::ProgressBar)> = None;

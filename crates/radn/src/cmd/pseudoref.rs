@@ -59,6 +59,7 @@ pub fn run(a: Args) -> Result<()> {
             output_kind,
             guides: radn_core::guide::JobGuides::FromReader,
             replace_denoised: true,
+            bands: radn_core::job::Bands::Auto,
         });
     }
     let total: usize = jobs.iter().map(|j| j.output_count()).sum();
