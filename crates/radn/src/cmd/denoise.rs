@@ -146,8 +146,8 @@ pub struct Args {
     /// Network with tiles: whether frames are read, aligned, denoised and written band by band
     /// (a band is a row of tiles), so that memory follows the band, not the frame (about 1 GB
     /// at 1080p with the default model, growing with the width only). Whole frames are about
-    /// 10% faster and take memory in proportion to the frame (about 2 GB at 1080p). `auto`:
-    /// band by band above 2.5 megapixels. The result is the same either way.
+    /// 15% faster at 1080p and take memory in proportion to the frame (about 2 GB at 1080p).
+    /// `auto`: band by band above 2.5 megapixels. The result is the same either way.
     #[arg(long, value_enum, default_value = "auto")]
     pub bands: crate::input::BandsArg,
     /// Network: tiles of equal size per network call. 1 is fastest on a CPU (measured in
