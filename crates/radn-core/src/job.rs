@@ -21,7 +21,6 @@ use crate::frame::{Frame, FrameReader};
 use crate::guide::JobGuides;
 use crate::output::{ensure_not_input, ensure_writable_dir};
 use crate::output_locks::OutputClaim;
-use crate::plane::Plane;
 use crate::row_store::{FrameStore, RowStore};
 use crate::window::WindowReader;
 
@@ -303,12 +302,13 @@ impl SequenceJob {
         let n = self.inputs.len();
         let mut report = JobReport::default();
         let mut stats: BTreeMap<usize, FrameStats> = BTreeMap::new();
-        // whole-frame OIDN guides of the frames in the windows in flight (computed once each)
-        let mut oidn: BTreeMap<usize, Plane> = BTreeMap::new();
+        // OIDN guides of the frames in the windows in flight (computed once each, on the whole
+        // frame), on disk
         // the decoded rows and the method's per-frame features of the frames in the windows in
         // flight, on disk
         let mut decoded: BTreeMap<usize, FrameStore> = BTreeMap::new();
         let mut features: BTreeMap<usize, RowStore> = BTreeMap::new();
+        let mut oidn: BTreeMap<usize, RowStore> = BTreeMap::new();
         let band = method.band_rows().max(1);
         let halo = method.halo();
         let frames = self.output_count();
@@ -346,7 +346,11 @@ impl SequenceJob {
             if let JobGuides::Oidn { guides, originals } = &self.guides {
                 for &k in idx.iter().flatten() {
                     if let std::collections::btree_map::Entry::Vacant(e) = oidn.entry(k) {
-                        e.insert(guides.of_file(&self.reader, &originals[k])?);
+                        let guide = guides.of_file(&self.reader, &originals[k])?;
+                        let path = &self.inputs[k].1;
+                        let store = RowStore::new(path, width, height, vec![guide.channels()])?;
+                        store.write_rows(0, &[&guide])?;
+                        e.insert(store);
                     }
                 }
             }
@@ -358,12 +362,11 @@ impl SequenceJob {
                              features: &BTreeMap<usize, RowStore>|
              -> Result<Frame> {
                 let mut f = decoded[&k].read(rows.clone())?;
-                if let Some(g) = oidn.get(&k) {
-                    f.guide = Some(g.rows(rows.clone()));
+                if let Some(store) = oidn.get(&k) {
+                    f.guide = store.read_rows(rows.clone())?.pop();
                 }
                 if let Some(store) = features.get(&k) {
-                    let mut planes = store.read_rows(rows)?;
-                    f.features = planes.pop();
+                    f.features = store.read_rows(rows)?.pop();
                 }
                 Ok(f)
             };

@@ -4,10 +4,11 @@
 //! bands reach; each frame belongs to five windows, so its rows are read some ten times over.
 //! Decoding them from the EXR file each time (decompressing its blocks) would cost several
 //! times the decoding of a whole frame. So each frame is decoded once, band by band, when it
-//! first enters a window ([`FrameStore`]), and the method's per-frame features, where it has
-//! them ([`crate::denoiser::BandDenoiser::band_features`]), are computed once likewise
-//! ([`RowStore`]); every band then reads back only the rows it reaches, as stored. Memory
-//! follows the band, not the frame.
+//! first enters a window ([`FrameStore`]); its Intel Open Image Denoise guide, where the job
+//! computes one, and the method's per-frame features, where it has them
+//! ([`crate::denoiser::BandDenoiser::band_features`]), are computed once likewise and kept in
+//! a [`RowStore`] each. Every band then reads back only the rows it reaches, as stored.
+//! Memory follows the band, not the frame.
 //!
 //! A store is an anonymous temporary file (in `TMPDIR`, or the system's temporary folder):
 //! the operating system removes it when the store is dropped or the process ends, killed or

@@ -265,6 +265,36 @@ fn unwritable_output_folder() {
 }
 
 #[test]
+fn an_unusable_scratch_folder_is_named_and_nothing_is_written() {
+    // band by band, each frame's decoded rows are kept in a temporary file in TMPDIR
+    let d = tempfile::tempdir().unwrap();
+    let input = sequence(d.path(), 5);
+    let o = tempfile::tempdir().unwrap();
+    let out = o.path().join("d.####.exr");
+    let missing = d.path().join("no-such-folder");
+    let res = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(denoise_args(&input, out.to_str().unwrap()))
+        .args(["--tile", "8", "--bands", "always"])
+        .env("TMPDIR", &missing)
+        .output()
+        .unwrap();
+    let e = String::from_utf8_lossy(&res.stderr);
+    assert!(!res.status.success() && !e.contains("panicked"), "{e}");
+    assert!(
+        e.contains("beauty.0001.exr")
+            && e.contains("temporary file")
+            && e.contains(missing.to_str().unwrap())
+            && e.contains("TMPDIR"),
+        "{e}"
+    );
+    assert_eq!(
+        walk(o.path()),
+        Vec::<PathBuf>::new(),
+        "an output was written"
+    );
+}
+
+#[test]
 fn output_equal_to_input() {
     let d = tempfile::tempdir().unwrap();
     let input = sequence(d.path(), 5);
