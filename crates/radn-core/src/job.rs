@@ -1,5 +1,6 @@
-//! Denoising whole sequences: every frame decoded once and kept while windows need it (or,
-//! band by band, only the rows a band reaches), frames whose output exists skipped (so a killed
+//! Denoising whole sequences: every frame decoded once and kept while windows need it (in
+//! memory, or band by band in a scratch file from which each band reads only the rows it
+//! reaches: [`crate::row_store`]), frames whose output exists skipped (so a killed
 //! run resumes), results written into a copy of the input file that keeps every other layer,
 //! through a temporary file renamed into place. Each output frame is claimed while it is made
 //! ([`crate::output_locks::OutputClaim`]), so two runs on one output write each frame once.
@@ -289,9 +290,11 @@ impl SequenceJob {
 
 impl SequenceJob {
     /// [`SequenceJob::run`] band by band: each output frame is denoised in bands of rows, each
-    /// band from only the rows of its window's frames that the band reaches (decoded for it and
-    /// dropped after), and written block by block as its rows are done, so memory follows the
-    /// band's size rather than the frame's.
+    /// band from only the rows of its window's frames that the band reaches, and written block
+    /// by block as its rows are done, so memory follows the band's size rather than the
+    /// frame's. Each frame is decoded once, when it first enters a window, into a scratch file
+    /// (with its OIDN guide and the method's per-frame features, where there are any) that
+    /// its bands are read from until its last window is done.
     fn run_banded(
         &self,
         r: usize,
@@ -302,10 +305,8 @@ impl SequenceJob {
         let n = self.inputs.len();
         let mut report = JobReport::default();
         let mut stats: BTreeMap<usize, FrameStats> = BTreeMap::new();
-        // OIDN guides of the frames in the windows in flight (computed once each, on the whole
-        // frame), on disk
-        // the decoded rows and the method's per-frame features of the frames in the windows in
-        // flight, on disk
+        // of the frames in the windows in flight, on disk: their decoded rows, the method's
+        // per-frame features, and their OIDN guides (each computed once, on the whole frame)
         let mut decoded: BTreeMap<usize, FrameStore> = BTreeMap::new();
         let mut features: BTreeMap<usize, RowStore> = BTreeMap::new();
         let mut oidn: BTreeMap<usize, RowStore> = BTreeMap::new();
@@ -439,8 +440,8 @@ impl SequenceJob {
             let total = started.elapsed();
             tracing::debug!(
                 "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s \
-                 (and {:.1} s before, for the statistics pass of the frames new to this window, \
-                 and {:.1} s for their per-frame features)",
+                 (and {:.1} s before, for decoding the frames new to this window with their \
+                 statistics and guides, and {:.1} s for their per-frame features)",
                 output.display(),
                 total.as_secs_f64(),
                 reading.as_secs_f64(),
