@@ -259,6 +259,12 @@ pub fn run(a: Args) -> Result<()> {
         Method::Classic => Box::new(a.classic.denoiser()),
         Method::Network => Box::new(network_from(&a)?),
     };
+    if a.bands == crate::input::BandsArg::Always && method.banded().is_none() {
+        tracing::warn!(
+            "--bands always: this method runs whole frames (the classic method, --tile 0 or a \
+             UNet), so memory follows the frame"
+        );
+    }
     let oidn = a.guide.apply(&mut reader)?;
     let run = DenoiseRun {
         input: SequencePattern::parse_or_folder(&a.input)?,
