@@ -256,14 +256,9 @@ pub struct FrameStats {
 
 impl FrameStats {
     /// Reads a frame band by band (`rows` rows at a time, one opening of the file per band)
-    /// and gathers its statistics.
-    pub fn gather(reader: &FrameReader, path: &Path, height: usize, rows: usize) -> Result<Self> {
-        Self::gather_with(reader, path, height, rows, |_, _| Ok(()))
-    }
-
-    /// [`FrameStats::gather`] that also hands each band read, with its first row, to `band`
+    /// and gathers its statistics, handing each band read, with its first row, to `each_band`
     /// (the sequence job keeps the decoded rows: [`crate::row_store::FrameStore`]).
-    pub fn gather_with(
+    pub fn gather(
         reader: &FrameReader,
         path: &Path,
         height: usize,

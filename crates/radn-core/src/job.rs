@@ -326,7 +326,7 @@ impl SequenceJob {
                 if let std::collections::btree_map::Entry::Vacant(e) = stats.entry(k) {
                     // one decoding of the frame: its statistics, and its rows kept for its bands
                     let mut store: Option<FrameStore> = None;
-                    let s = FrameStats::gather_with(
+                    let s = FrameStats::gather(
                         &self.reader,
                         &self.inputs[k].1,
                         height,

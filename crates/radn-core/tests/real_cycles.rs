@@ -187,7 +187,7 @@ fn the_noise_level_falls_with_the_sample_count_and_bands_see_the_whole_frames() 
             .level()
             .unwrap();
         // the statistics pass reads 64-row bands (and the sample is 100 rows: one partial)
-        let banded = FrameStats::gather(&reader, &path, frame.height(), STATS_ROWS)
+        let banded = FrameStats::gather(&reader, &path, frame.height(), STATS_ROWS, |_, _| Ok(()))
             .unwrap()
             .noise_level()
             .unwrap();
