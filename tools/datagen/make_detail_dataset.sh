@@ -29,7 +29,10 @@
 #                 at its 256x256 and lens, 4 / 11 / 32 spp, 256-spp references of frames 4-5
 #                 (the test split's 3 000 000 and 3 000 002, where radn trails OIDN, are 256 px
 #                 scenes scoring 41-47 dB; every other validation set is 192x112 at 33-38 dB).
-# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=3 FUR_TEST=2 GLASS_VAL=2 CONTACT_TRAIN=5 CONTACT_VAL=2 CONTACT_TEST=2 VAL_256=2] tools/datagen/make_detail_dataset.sh [OUT]
+#   wires-val     model selection for one-pixel detail under subpixel motion: the first val-split
+#                 scenes with thin wires and a moving camera (`--with-wires`; held-aside 3 000 000
+#                 has static wires under a panning camera), rendered like val-256.
+# Usage: [DETAIL_TRAIN=90 DETAIL_VAL=4 DETAIL_TEST=4 TRAIN_T=16 TRAIN_FUR=4 FUR_TRAIN=5 FUR_VAL=3 FUR_TEST=2 GLASS_VAL=2 CONTACT_TRAIN=5 CONTACT_VAL=2 CONTACT_TEST=2 VAL_256=2 WIRES_VAL=3] tools/datagen/make_detail_dataset.sh [OUT]
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/radn}"
@@ -63,3 +66,5 @@ $py -m radn_datagen dataset --split contact-test --scenes "${CONTACT_TEST:-2}" -
     --reference-spp 512 --reference-frames 3-6 --half --out "$out/contact-test"
 $py -m radn_datagen dataset --split val --scenes "${VAL_256:-2}" --frames 1-7 --res 256x256 --spp 32 \
     --reference-spp 256 --reference-frames 4-5 --half --out "$out/val-256"
+$py -m radn_datagen dataset --split val --with-wires --scenes "${WIRES_VAL:-3}" --frames 1-7 --res 256x256 --spp 32 \
+    --reference-spp 256 --reference-frames 4-5 --half --out "$out/wires-val"

@@ -10,7 +10,7 @@ mod common;
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use common::{assert_aovs_sum_to_beauty, oidn_or_skip, radn, radn_ok, sample, with_aovs};
+use common::{assert_aovs_sum_to_beauty, level_with_aovs, oidn_or_skip, radn, radn_ok, sample};
 use radn_core::exr_file::ExrFile;
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::config::InputConfig;
@@ -116,30 +116,48 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
     }
     const UNMIXED: [&str; 4] = ["--guide-mix", "off", "--guide-mix-outliers", "off"];
     for (blend, scales) in [(false, 1), (true, 1)] {
-        guided_aovs_sum_and_bands_equal_whole(blend, scales, &UNMIXED);
+        guided_aovs_sum_and_bands_equal_whole(blend, scales, "low", &UNMIXED);
     }
     // the guide mix moves the result toward the guide, AOVs along with the beauty
-    let unmixed = guided_aovs_sum_and_bands_equal_whole(true, 3, &UNMIXED);
-    let mixed = guided_aovs_sum_and_bands_equal_whole(true, 3, &["--guide-mix", "0.5"]);
+    let unmixed = guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &UNMIXED);
+    let mixed = guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &["--guide-mix", "0.5"]);
     assert!(
         worst(&unmixed, &mixed) > 1e-3,
         "the guide mix changes nothing"
     );
     // the outlier ramp alone (on by default) takes the guide where the untrained network's
     // result strays from it, and keeps AOVs summing and bands equal to whole frames
-    let outliers = guided_aovs_sum_and_bands_equal_whole(true, 3, &["--guide-mix", "off"]);
+    let outliers = guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &["--guide-mix", "off"]);
     assert!(
         worst(&unmixed, &outliers) > 1e-3,
         "the outlier ramp changes nothing"
     );
+    // the window's guide with its range term (on by default; the 32-spp frames are clean
+    // enough for it) changes the mix, and still keeps AOVs summing and bands equal
+    let ranged = guided_aovs_sum_and_bands_equal_whole(true, 3, "high", &[]);
+    let unranged = guided_aovs_sum_and_bands_equal_whole(
+        true,
+        3,
+        "high",
+        &["--guide-mix-range", "off", "--guide-mix-from", "window"],
+    );
+    assert!(
+        worst(&ranged, &unranged) > 1e-4,
+        "the range term changes nothing"
+    );
 }
 
 /// Denoises with guides, whole and in bands: AOVs sum to the beauty, bands equal the whole;
-/// returns frame 5's beauty. `mix`: the guide mix's arguments.
-fn guided_aovs_sum_and_bands_equal_whole(blend: bool, scales: usize, mix: &[&str]) -> Vec<f32> {
+/// returns frame 5's beauty. `level`: the sample's level; `mix`: the guide mix's arguments.
+fn guided_aovs_sum_and_bands_equal_whole(
+    blend: bool,
+    scales: usize,
+    level: &str,
+    mix: &[&str],
+) -> Vec<f32> {
     let d = tempfile::tempdir().unwrap();
     let m = guided_model_with(d.path(), blend, scales);
-    let input = with_aovs(d.path(), 0.25);
+    let input = level_with_aovs(d.path(), level, 0.25);
     for tile in ["0", "40"] {
         let out = format!("{}/out{tile}/f_####.exr", d.path().display());
         let mut args = vec![
@@ -207,6 +225,14 @@ fn a_guide_needs_a_guided_model_and_a_guided_model_a_guide() {
     fails(
         &["--model", &default, "--guide-mix", "0.5"],
         "--guide-mix 0.5",
+    );
+    fails(
+        &["--model", &default, "--guide-mix-range", "0.02"],
+        "--guide-mix-range 0.02",
+    );
+    fails(
+        &["--guide-mix-range", "0"],
+        "not auto, off or a positive number",
     );
     fails(&["--method", "classic", "--guide", "oidn"], "classic");
     // the guide term of the confidence, without guides to compare

@@ -177,6 +177,9 @@ def main(argv=None):
     d.add_argument("--with-glass", action="store_true",
                    help="only the split's glass-heavy scenes (caustics through glass): the first S such "
                         "seeds, in order")
+    d.add_argument("--with-wires", action="store_true",
+                   help="only the split's scenes with thin wires under a moving camera: the first S such "
+                        "seeds, in order")
     a = p.parse_args(argv)
     if a.cmd == "trim":
         from .trim import trim_scene
@@ -236,12 +239,14 @@ def main(argv=None):
     detail = a.detail or a.split.startswith("detail")
     fur = a.fur or a.split.startswith("fur")
     contact = a.contact or a.split.startswith("contact")
-    if a.with_hair and a.with_glass:
-        raise SystemExit("--with-hair and --with-glass pick different scenes: give one")
+    if a.with_hair + a.with_glass + a.with_wires > 1:
+        raise SystemExit("--with-hair, --with-glass and --with-wires pick different scenes: give one")
     if a.with_hair:
         seeds = scenes.seeds_with_hair(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
     elif a.with_glass:
         seeds = scenes.seeds_with_glass(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
+    elif a.with_wires:
+        seeds = scenes.seeds_with_wires(SPLIT_BASE[a.split], a.scenes, frames, res, a.layout)
     else:
         seeds = [SPLIT_BASE[a.split] + i for i in range(a.scenes)]
     for i, seed in enumerate(seeds):

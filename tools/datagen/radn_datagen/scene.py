@@ -377,6 +377,22 @@ def seeds_with_glass(first_seed: int, count: int, frames=(1, 9), resolution=(256
     return seeds_where(first_seed, count, is_glass_heavy, "glass", frames, resolution, layout, search)
 
 
+def has_wires_in_motion(desc) -> bool:
+    """Whether a built scene has the bundle of thin wires and a moving camera: static thin lines
+    that move across the frame by fractions of a pixel, the case of the held-aside test scene
+    3 000 000 (wires under a panning camera), where warping blurs what a spatial denoiser keeps."""
+    wires = any(o.get("primitive") == "wires" for o in desc["objects"])
+    return wires and desc["camera"]["move"] != "static"
+
+
+def seeds_with_wires(first_seed: int, count: int, frames=(1, 9), resolution=(256, 256), layout=None,
+                     search=2000):
+    """The first `count` seeds from `first_seed` on whose scene has thin wires under a moving
+    camera (`has_wires_in_motion`): validation data for one-pixel detail through subpixel motion."""
+    return seeds_where(first_seed, count, has_wires_in_motion, "wires under a moving camera", frames,
+                       resolution, layout, search)
+
+
 def build_calibration(frames=(1, 2), resolution=(64, 48), step_px=(2.0, 1.0)):
     """A test scene with exactly known motion: an orthographic camera (10 px per unit) looking
     down at a textured plane that moves `step_px` pixels per frame (x right, y up)."""

@@ -273,6 +273,33 @@ print(json.dumps({"picked": picked, "glass": glass, "min": scene.GLASS_HEAVY_MIN
     assert r.returncode != 0 and "give one" in r.stderr, r.stderr
 
 
+def test_seeds_with_wires_are_the_first_of_the_split_with_wires_under_a_moving_camera():
+    """`dataset --with-wires` renders the first S seeds of the split whose scene has the bundle of
+    thin wires and a camera that moves: every one it picks has both, every seed it skips before
+    the last lacks one, and some skipped scene has wires under a static camera or none at all."""
+    code = """
+import json
+from radn_datagen import scene
+picked = scene.seeds_with_wires(2_000_000, 2, frames=(1, 2), resolution=(32, 32))
+seen = {}
+for s in range(2_000_000, picked[-1] + 1):
+    d = scene.build(s, frames=(1, 2), resolution=(32, 32))
+    seen[s] = [any(o.get("primitive") == "wires" for o in d["objects"]), d["camera"]["move"]]
+print(json.dumps({"picked": picked, "seen": seen}))
+"""
+    out = subprocess.run([sys.executable, "-c", code], cwd=DATAGEN, check=True, capture_output=True, text=True)
+    result = json.loads(out.stdout.strip().splitlines()[-1])
+    picked, seen = result["picked"], {int(k): v for k, v in result["seen"].items()}
+    assert len(picked) == 2 and picked == sorted(picked)
+    assert all(seen[s][0] and seen[s][1] != "static" for s in picked)
+    assert not any(w and m != "static" for s, (w, m) in seen.items() if s not in picked)
+    assert len(seen) > len(picked), "no scene was skipped"
+    r = subprocess.run([sys.executable, "-m", "radn_datagen", "dataset", "--split", "val", "--scenes", "1",
+                        "--with-glass", "--with-wires", "--out", "/nonexistent"], cwd=DATAGEN,
+                       capture_output=True, text=True)
+    assert r.returncode != 0 and "give one" in r.stderr, r.stderr
+
+
 def test_fur_adds_strands_in_view_without_changing_the_rest_of_the_scene():
     """`--fur` (the fur-* splits) adds furry objects and grass with dense particle hair, drawn
     from their own random stream: the scene's own objects, lights and camera stay the same."""

@@ -172,24 +172,44 @@ impl MixGuide {
 }
 
 /// The confidence-weighted mean of the window's aligned guides over rows `rows`: per pixel,
-/// `Σ c_k·g_k / Σ c_k`. The centre frame has confidence 1, so the mean is defined everywhere,
-/// and a pixel no side frame reaches gets the centre's guide.
-pub fn window_guide(win: &AlignedWindow, rows: Range<usize>) -> Plane {
+/// `Σ c_k·r_k·g_k / Σ c_k·r_k`. The centre frame has confidence 1, so the mean is defined
+/// everywhere, and a pixel no side frame reaches gets the centre's guide.
+///
+/// `range` is the range term of a temporal bilateral filter: with `Some(σ)`, a side frame's
+/// weight at a pixel is also `r_k = exp(−(d/σ)²)`, where `d` is the difference of its guide's
+/// and the centre's guide's luminance, each mapped by `x / (1 + x)` (as the [`OutlierRamp`]
+/// compares). A spatial denoiser's frame-to-frame error is small and smooth, so σ of a few
+/// hundredths still averages it away; a warp that blurs a one-pixel line or misses an edge
+/// differs by more, and leaves the centre's guide its own detail there. `None`: `r_k = 1`.
+pub fn window_guide(win: &AlignedWindow, rows: Range<usize>, range: Option<f32>) -> Plane {
     let w = win.centre().color.width();
     let n = w * rows.len();
     let mut sum = Plane::zeros(w, rows.len(), 3);
     let mut weight = vec![0f32; n];
+    let centre_luma = match (range, &win.centre().guide) {
+        (Some(sigma), Some(g)) => {
+            assert!(sigma > 0.0, "the range term's σ is positive");
+            Some(mapped_luma(&g.rows(rows.clone())))
+        }
+        _ => None,
+    };
     for f in &win.frames {
         let Some(g) = &f.guide else { continue };
         let conf = f.confidence.rows(rows.clone());
-        let conf = conf.channel(0);
         let g = g.rows(rows.clone());
+        let mut conf = conf.channel(0).to_vec();
+        if let (Some(sigma), Some(centre)) = (range, &centre_luma) {
+            for ((c, l), l0) in conf.iter_mut().zip(mapped_luma(&g)).zip(centre) {
+                let d = (l - l0) / sigma;
+                *c *= (-d * d).exp();
+            }
+        }
         for ch in 0..3 {
-            for ((s, &v), &c) in sum.channel_mut(ch).iter_mut().zip(g.channel(ch)).zip(conf) {
+            for ((s, &v), &c) in sum.channel_mut(ch).iter_mut().zip(g.channel(ch)).zip(&conf) {
                 *s += c * v;
             }
         }
-        for (s, &c) in weight.iter_mut().zip(conf) {
+        for (s, &c) in weight.iter_mut().zip(&conf) {
             *s += c;
         }
     }
@@ -263,7 +283,7 @@ mod tests {
         let win = AlignedWindow {
             frames: (-2..=2).map(frame).collect(),
         };
-        let g = window_guide(&win, 1..3);
+        let g = window_guide(&win, 1..3, None);
         assert_eq!((g.width(), g.height()), (w, 2));
         // left: (−2 − 1 + 0 + 1 + 0.5·2) / 4.5 = −1 / 4.5; right: the centre's 0
         for y in 0..2 {
@@ -276,6 +296,74 @@ mod tests {
         assert!(!MixGuide::Centre.uses_window(Some(100.0)));
         assert!(MixGuide::FollowLevel.uses_window(Some(100.0)));
         assert!(!MixGuide::FollowLevel.uses_window(Some(0.01)));
+    }
+
+    #[test]
+    fn the_range_term_averages_small_differences_and_keeps_the_centres_line() {
+        use radn_core::align::AlignedFrame;
+        let (w, h) = (5, 3);
+        let t = |x: f32| x / (1.0 + x);
+        let untone = |m: f32| m / (1.0 - m);
+        // the centre's guide: 0.3 with a bright one-pixel column at x = 2 (a wire); side frame
+        // k: the same shifted by k·0.004 in mapped luminance (a spatial denoiser's flicker),
+        // its wire smeared to 0.6 of its contrast (a warp that blurred it)
+        let centre = |x: usize| if x == 2 { 1.5 } else { 0.3 };
+        let guide_of = |k: i32, x: usize| {
+            let base = t(0.3) + 0.004 * k as f32;
+            if k == 0 {
+                centre(x)
+            } else if x == 2 {
+                untone(base + 0.6 * (t(1.5) - t(0.3)))
+            } else {
+                untone(base)
+            }
+        };
+        let frame = |k: i32| AlignedFrame {
+            offset: k,
+            color: Plane::zeros(w, h, 3),
+            alpha: None,
+            albedo: None,
+            normal: None,
+            depth: None,
+            aovs: vec![],
+            guide: Some(Plane::from_fn(w, h, 3, |x, _, _| guide_of(k, x))),
+            confidence: Plane::from_fn(w, h, 1, |_, _, _| 1.0),
+            flow: Plane::zeros(w, h, 2),
+        };
+        let win = AlignedWindow {
+            frames: (-2..=2).map(frame).collect(),
+        };
+        let mean = |x: usize| (-2..=2).map(|k| guide_of(k, x)).sum::<f32>() / 5.0;
+        let plain = window_guide(&win, 0..h, None);
+        let ranged = window_guide(&win, 0..h, Some(0.02));
+        for y in 0..h {
+            for x in 0..w {
+                let (p, r) = (plain.channel(0)[y * w + x], ranged.channel(0)[y * w + x]);
+                assert!(
+                    (p - mean(x)).abs() < 1e-5,
+                    "confidence alone: the plain mean"
+                );
+                if x == 2 {
+                    // the blurred wire differs by 0.24 in t: ranged, the centre keeps it
+                    assert!(p < 0.9 * centre(2), "the plain mean blurs the wire: {p}");
+                    assert!((r - centre(2)).abs() < 1e-3, "ranged wire {r}");
+                } else {
+                    // flicker of up to 0.008 in t (σ = 0.02): averaged nearly as the plain
+                    // mean, which is the centre's value by symmetry
+                    assert!((r - p).abs() < 1e-4, "ranged {r} plain {p}");
+                }
+            }
+        }
+        // the flicker's weights are unequal but symmetric: frames ±1 count more than ±2
+        let lopsided = AlignedWindow {
+            frames: win.frames.iter().take(4).cloned().collect(),
+        };
+        let r = window_guide(&lopsided, 0..1, Some(0.02)).channel(0)[0];
+        let p = window_guide(&lopsided, 0..1, None).channel(0)[0];
+        assert!(
+            t(r) > t(p) && t(r) < t(0.3),
+            "closer frames weigh more: {r} {p}"
+        );
     }
 
     #[test]

@@ -68,6 +68,10 @@ pub struct NetworkDenoiser {
     /// Which guide the guide mix uses: the centre frame's, the window's aligned guides
     /// averaged, or by the frame's noise level ([`guide_mix::MixGuide`]).
     pub guide_mix_from: guide_mix::MixGuide,
+    /// For the window's guide in the guide mix: the range term's σ ([`guide_mix::window_guide`]),
+    /// which keeps each side frame's guide out where it differs from the centre's by more than
+    /// a spatial denoiser's frame-to-frame error. `None`: confidence alone.
+    pub guide_mix_range: Option<f32>,
     /// Where the guide mix takes the guide alone, pixel by pixel: outliers of the result
     /// against the guide ([`guide_mix::OutlierRamp`]). `None`: the mix's weight everywhere.
     pub guide_mix_outliers: Option<guide_mix::OutlierRamp>,
@@ -123,6 +127,26 @@ impl NetworkDenoiser {
         p
     }
 
+    /// Whether the guide mix of a frame of noise level `level` uses the window's guide, and if
+    /// so with which range term ([`guide_mix::window_guide`]): `None` for the centre's guide,
+    /// `Some(None)` for the window's by confidence alone, `Some(Some(σ))` with the range term.
+    /// Like the colour confidence, the range σ of [`NetworkDenoiser::guide_mix_range`] holds
+    /// for the cleanest frames and loosens with the input blend's noise scale; frames the input
+    /// blend leaves alone (their guides differ by more than any tight range) get the window's
+    /// guide without it. With a range, [`guide_mix::MixGuide::FollowLevel`] takes the window's
+    /// guide at every level: the range keeps the centre's detail that made clean frames use
+    /// the centre's guide before.
+    pub fn guide_mix_range_for(&self, level: Option<f32>) -> Option<Option<f32>> {
+        let scale = input_blend::noise_scale_for_level(level);
+        let range = self
+            .guide_mix_range
+            .and_then(|sigma| scale.map(|k| sigma * k / input_blend::MIN_NOISE_SCALE));
+        let window = self.guide_mix_from.uses_window(level)
+            || (self.guide_mix_range.is_some()
+                && self.guide_mix_from == guide_mix::MixGuide::FollowLevel);
+        window.then_some(range)
+    }
+
     /// The window of frames `window` aligned for its centre frame's scales, and those scales
     /// (computed once, before aligning, from the frame as rendered).
     fn align_for_centre(&self, window: &[Option<&Frame>]) -> (AlignedWindow, FeatureScales) {
@@ -152,6 +176,7 @@ impl NetworkDenoiser {
             warp_stem_features: true,
             guide_mix: 0.0,
             guide_mix_from: guide_mix::MixGuide::FollowLevel,
+            guide_mix_range: None,
             guide_mix_outliers: None,
             guide_mix_learned: true,
         }
@@ -288,8 +313,8 @@ impl NetworkDenoiser {
                     })
                     .flatten()
                     .collect();
-                let g = if self.guide_mix_from.uses_window(scales.noise_level) {
-                    guide_mix::window_guide(win, rows.clone())
+                let g = if let Some(range) = self.guide_mix_range_for(scales.noise_level) {
+                    guide_mix::window_guide(win, rows.clone(), range)
                 } else {
                     guide.rows(rows.clone())
                 };
@@ -1089,6 +1114,33 @@ mod tests {
             .filter(|((b, p), x)| (*b - *p).abs() < 1e-6 && (*p - *x).abs() > 1e-3)
             .count();
         assert!(kept > input.len() / 4, "{kept} of {}", input.len());
+    }
+
+    #[test]
+    fn the_mix_range_follows_the_noise_level_and_takes_the_window_guide_at_every_level() {
+        use guide_mix::MixGuide;
+        use input_blend::{LEVEL_AT_MIN_SCALE, MAX_NOISE_SCALE, MIN_NOISE_SCALE};
+        let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+        let mut n = NetworkDenoiser::new(d, Device::flex());
+        let clean = Some(0.01);
+        let twice = Some(2.0 * LEVEL_AT_MIN_SCALE);
+        let noisy = Some(10.0 * LEVEL_AT_MIN_SCALE * MAX_NOISE_SCALE / MIN_NOISE_SCALE);
+        // without a range: the centre's guide on clean frames, the window's on noisy ones
+        assert_eq!(n.guide_mix_range_for(clean), None);
+        assert_eq!(n.guide_mix_range_for(noisy), Some(None));
+        n.guide_mix_range = Some(0.02);
+        // σ on the cleanest frames, twice σ at twice the level of the smallest scale, none on
+        // frames the input blend leaves alone
+        assert_eq!(n.guide_mix_range_for(clean), Some(Some(0.02)));
+        let mid = n.guide_mix_range_for(twice).unwrap().unwrap();
+        assert!((mid - 0.04).abs() < 1e-6, "{mid}");
+        assert_eq!(n.guide_mix_range_for(noisy), Some(None));
+        assert_eq!(n.guide_mix_range_for(None), Some(None));
+        // the centre's guide stays the centre's guide
+        n.guide_mix_from = MixGuide::Centre;
+        assert_eq!(n.guide_mix_range_for(clean), None);
+        n.guide_mix_from = MixGuide::Window;
+        assert_eq!(n.guide_mix_range_for(clean), Some(Some(0.02)));
     }
 
     #[test]

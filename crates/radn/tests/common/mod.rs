@@ -43,8 +43,13 @@ pub fn radn_ok(args: &[&str]) -> std::process::Output {
 /// Copies the sample's low level into `dir/in/`, with float beauty, two AOVs (`diffuse`,
 /// `specular`) that sum to it exactly, and an alpha that varies between 1 and `low_alpha`.
 pub fn with_aovs(dir: &Path, low_alpha: f32) -> String {
+    level_with_aovs(dir, "low", low_alpha)
+}
+
+/// [`with_aovs`] for the sample's level `level` (`low`, `half` or `high`).
+pub fn level_with_aovs(dir: &Path, level: &str, low_alpha: f32) -> String {
     for f in 1..=9 {
-        let mut file = ExrFile::read(sample().join(format!("low/frame_{f:04}.exr"))).unwrap();
+        let mut file = ExrFile::read(sample().join(format!("{level}/frame_{f:04}.exr"))).unwrap();
         let n = file.width() * file.height();
         for c in ["R", "G", "B"] {
             let name = format!("ViewLayer.Combined.{c}");
