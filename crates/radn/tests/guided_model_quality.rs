@@ -25,7 +25,8 @@ const FRAMES: std::ops::RangeInclusive<i64> = 3..=7;
 /// 34.23 / 36.66 dB and tMAE 0.0195 / 0.0154 / 0.0118; guided 32.53 / 34.48 / 36.71 dB and
 /// 0.0175 / 0.0145 / 0.0117 (0.90 / 0.94 / 0.99 of OIDN's); the stage-7 default 31.42 / 33.17 /
 /// 35.19 dB. Without the outlier ramp the guided model's 32 spp was 36.69 dB, without the mix
-/// 32.40 / 34.07 / 35.73 dB.
+/// 32.40 / 34.07 / 35.73 dB. With the window guide's range term and the mix at 0.7 (the
+/// defaults since 2026-12-05) 32.49 / 34.52 / 36.84 dB and 0.0176 / 0.0144 / 0.0116.
 const GATES: [(&str, f64, f64, f64); 3] = [
     ("low", 0.4, 0.92, 1.0),
     ("half", 0.15, 0.97, 1.2),
@@ -38,13 +39,15 @@ const GATES: [(&str, f64, f64, f64); 3] = [
 /// the guide confidence (the default since 2026-12-04) 32.46 / 34.51 / 36.83 dB and 0.0177 /
 /// 0.0145 / 0.0115; the large model 32.52 / 34.47 / 36.73 dB. Retrained for Catmull-Rom
 /// resampling (the weights since 2026-12-04) 32.53 / 34.50 / 36.81 dB and 0.0175 / 0.0145 /
-/// 0.0114.
+/// 0.0114. With the window guide's range term and the mix at 0.7 (the defaults since
+/// 2026-12-05) 32.53 / 34.64 / 36.93 dB and 0.0175 / 0.0142 / 0.0114 (0.90 / 0.92 / 0.97 of
+/// OIDN's); the gates at 11 and 32 spp were raised from 0.15 and 0.05 dB then.
 /// Without the ramp it was 32.45 / 34.51 / 36.78 dB; without the mix 32.30 / 34.28 / 36.08 dB,
 /// 0.58 dB behind OIDN at 32 spp.
 const LEAN_GATES: [(&str, f64, f64, f64); 3] = [
     ("low", 0.35, 0.92, 0.95),
-    ("half", 0.15, 0.97, 1.2),
-    ("high", 0.05, 1.0, 1.45),
+    ("half", 0.3, 0.95, 1.3),
+    ("high", 0.15, 0.99, 1.5),
 ];
 
 fn rgb(path: &std::path::Path) -> Plane {

@@ -85,13 +85,14 @@ pub struct Args {
     #[arg(long, value_name = "auto|off|K", default_value = "auto", num_args = 0..=1,
           default_missing_value = "auto", value_parser = parse_input_blend)]
     pub input_blend: BlendChoice,
-    /// Guided models: mix the result with each frame's own guide, (1 − W)·result + W·guide on
-    /// the beauty (AOVs get the beauty's per-pixel gain, so they still sum to it). The guide
-    /// keeps detail the window's kernels average away; the kernels remove per-frame error the
-    /// guide keeps. `auto`: the weight per pixel a model with a learned guide mix predicts, 0.5
-    /// for other guided models (chosen on the detail validation scenes: docs/guided.md, "Guide
-    /// mix"), nothing for others; `off` (or 0): the network's result alone; W: that weight
-    /// everywhere (1: the guide alone).
+    /// Guided models: mix the result with a guide, (1 − W)·result + W·guide on the beauty
+    /// (AOVs get the beauty's per-pixel gain, so they still sum to it); which guide: see
+    /// --guide-mix-from and --guide-mix-range. The guide keeps detail the window's kernels
+    /// average away; the kernels remove per-frame error the guide keeps. `auto`: the weight per
+    /// pixel a model with a learned guide mix predicts; for other guided models 0.7 with the
+    /// range term, 0.5 without it (each chosen on validation: docs/guided.md, "Guide mix" and
+    /// "The window's guide with a range term"); nothing for others; `off` (or 0): the network's
+    /// result alone; W: that weight everywhere (1: the guide alone).
     #[arg(long, value_name = "auto|off|W", default_value = "auto", value_parser = parse_guide_mix)]
     pub guide_mix: GuideMixChoice,
     /// With --guide-mix: which guide the result is mixed with. `centre`: the frame's own (its
@@ -361,6 +362,7 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         MixRange::Sigma(s) => Some(s),
     };
     n.guide_mix = match a.guide_mix {
+        GuideMixChoice::Auto if guided && n.guide_mix_range.is_some() => DEFAULT_RANGED_GUIDE_MIX,
         GuideMixChoice::Auto if guided => DEFAULT_GUIDE_MIX,
         GuideMixChoice::Auto => 0.0,
         GuideMixChoice::Weight(w) if w > 0.0 && !guided => {
@@ -416,9 +418,16 @@ fn parse_tile(s: &str) -> Result<TileChoice, String> {
 #[derive(Clone, Copy, Debug)]
 pub struct BlendChoice(pub Option<BlendStrength>);
 
-/// The guide mix `--guide-mix auto` gives a guided model: chosen on the detail validation
-/// scenes, where 0.25, 0.5 and 0.75 were measured (docs/guided.md, "Guide mix").
+/// The guide mix `--guide-mix auto` gives a guided model without the range term
+/// (`--guide-mix-range off`): chosen for the centre's guide on the detail validation scenes,
+/// where 0.25, 0.5 and 0.75 were measured (docs/guided.md, "Guide mix").
 pub const DEFAULT_GUIDE_MIX: f32 = 0.5;
+
+/// The guide mix `--guide-mix auto` gives a guided model with the range term (the default):
+/// chosen on six validation sets among 0.5, 0.6, 0.7, 0.8 and 1 (docs/guided.md, "The window's
+/// guide with a range term"). 0.8 tied it; the lower weight keeps more of what the kernels do
+/// for each AOV, whose share of the guide is only its share of the noisy pixel.
+pub const DEFAULT_RANGED_GUIDE_MIX: f32 = 0.7;
 
 /// `--guide-mix`'s value.
 #[derive(Clone, Copy, Debug)]
