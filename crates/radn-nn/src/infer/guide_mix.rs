@@ -254,9 +254,29 @@ mod tests {
         }
     }
 
+    /// A window frame at `offset` with this guide and confidence; black colour, no motion.
+    fn frame_with_guide(
+        offset: i32,
+        guide: Plane,
+        confidence: Plane,
+    ) -> radn_core::align::AlignedFrame {
+        let (w, h) = (guide.width(), guide.height());
+        radn_core::align::AlignedFrame {
+            offset,
+            color: Plane::zeros(w, h, 3),
+            alpha: None,
+            albedo: None,
+            normal: None,
+            depth: None,
+            aovs: vec![],
+            guide: Some(guide),
+            confidence,
+            flow: Plane::zeros(w, h, 2),
+        }
+    }
+
     #[test]
     fn the_window_guide_averages_by_confidence_and_falls_back_to_the_centre() {
-        use radn_core::align::AlignedFrame;
         let (w, h) = (6, 4);
         // frame k's guide is k everywhere; side frames are trusted on the left half only,
         // frame +2 at half weight there
@@ -267,18 +287,7 @@ mod tests {
                 (2, true) => 0.5,
                 (_, true) => 1.0,
             });
-            AlignedFrame {
-                offset: k,
-                color: Plane::zeros(w, h, 3),
-                alpha: None,
-                albedo: None,
-                normal: None,
-                depth: None,
-                aovs: vec![],
-                guide: Some(Plane::from_fn(w, h, 3, |_, _, _| k as f32)),
-                confidence: conf,
-                flow: Plane::zeros(w, h, 2),
-            }
+            frame_with_guide(k, Plane::from_fn(w, h, 3, |_, _, _| k as f32), conf)
         };
         let win = AlignedWindow {
             frames: (-2..=2).map(frame).collect(),
@@ -300,7 +309,6 @@ mod tests {
 
     #[test]
     fn the_range_term_averages_small_differences_and_keeps_the_centres_line() {
-        use radn_core::align::AlignedFrame;
         let (w, h) = (5, 3);
         let t = |x: f32| x / (1.0 + x);
         let untone = |m: f32| m / (1.0 - m);
@@ -318,17 +326,12 @@ mod tests {
                 untone(base)
             }
         };
-        let frame = |k: i32| AlignedFrame {
-            offset: k,
-            color: Plane::zeros(w, h, 3),
-            alpha: None,
-            albedo: None,
-            normal: None,
-            depth: None,
-            aovs: vec![],
-            guide: Some(Plane::from_fn(w, h, 3, |x, _, _| guide_of(k, x))),
-            confidence: Plane::from_fn(w, h, 1, |_, _, _| 1.0),
-            flow: Plane::zeros(w, h, 2),
+        let frame = |k: i32| {
+            frame_with_guide(
+                k,
+                Plane::from_fn(w, h, 3, |x, _, _| guide_of(k, x)),
+                Plane::from_fn(w, h, 1, |_, _, _| 1.0),
+            )
         };
         let win = AlignedWindow {
             frames: (-2..=2).map(frame).collect(),
