@@ -26,7 +26,8 @@ use radn_core::Plane;
 
 /// `ε` of the gain: the smallest linear colour the guide is divided by. Below it, a pixel
 /// takes the guide in proportion to its own value. That is far below anything visible after
-/// tonemapping, and it bounds the gain an AOV can get.
+/// tonemapping, and it bounds the gain an AOV can get. A result at or below zero takes none of
+/// the guide (its gain is `1 − w`): a gain would multiply the guide's share by its sign.
 pub const GUIDE_MIX_EPS: f32 = 1e-6;
 
 /// Where the guide mix takes the guide alone: a ramp over `d = |t(L_r) − t(L_g)|`, the
@@ -117,7 +118,14 @@ pub fn mix_with_guide(
             .enumerate()
             .map(|(i, (&r, &g))| {
                 let w = weights.as_ref().map_or_else(|| own(i), |ws| ws[i]);
-                1.0 - w + w * g.max(0.0) / r.max(GUIDE_MIX_EPS)
+                // a result at or below zero cannot be moved toward the guide by a gain: the
+                // guide's share would multiply its sign (a −0.01 became −1357 on dense fur)
+                let toward_guide = if r > 0.0 {
+                    w * g.max(0.0) / r.max(GUIDE_MIX_EPS)
+                } else {
+                    0.0
+                };
+                1.0 - w + toward_guide
             })
             .collect();
         for &at in std::iter::once(&0).chain(rgb_groups) {
@@ -416,6 +424,36 @@ mod tests {
         mix_with_guide(&mut alone, &guide, MixWeight::Uniform(0.0), Some(ramp), &[]);
         assert!((alone.channel(0)[0] - r[0]).abs() < 1e-6);
         assert!((alone.channel(0)[1] - 0.4).abs() < 1e-5);
+    }
+
+    #[test]
+    fn a_result_at_or_below_zero_is_not_amplified_toward_the_guide() {
+        // kernels can leave a pixel no sample lit slightly below zero (dense fur at 4 spp); the
+        // outlier ramp gives it the guide's full weight, and a gain of g / ε there turned
+        // −0.0095 into −1357 (fur-test 9 000 000). Now it keeps (1 − w) of itself.
+        let guide = Plane::from_fn(3, 1, 3, |_, _, _| 0.22);
+        let r = [-0.0095f32, 0.0, 0.23];
+        let mut values = Plane::from_fn(3, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.5 * r[x] });
+        mix_with_guide(
+            &mut values,
+            &guide,
+            MixWeight::Uniform(0.7),
+            Some(DEFAULT_OUTLIER_RAMP),
+            &[3],
+        );
+        for c in 0..3 {
+            let v = values.channel(c);
+            assert!(v[0] <= 0.0 && v[0] >= r[0], "negative result: {}", v[0]);
+            assert_eq!(v[1], 0.0, "a result of zero stays zero");
+            assert!(
+                (v[2] - (0.3 * 0.23 + 0.7 * 0.22)).abs() < 1e-5,
+                "a positive result mixes as before"
+            );
+            assert!(
+                (values.channel(3 + c)[0] - 0.5 * v[0]).abs() < 1e-6,
+                "the AOV's gain"
+            );
+        }
     }
 
     #[test]
