@@ -64,9 +64,10 @@ def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
 
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
                  calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None,
-                 cycles_denoise=False, fur=False, contact=False):
-    """Renders one scene: the input levels (`levels` and `extra_spp`), the optional reference,
-    and the optional teacher render (`teacher` spp) with its OIDN pseudo-reference."""
+                 cycles_denoise=False, fur=False, contact=False, extra_frames=None):
+    """Renders one scene: the input levels (`levels` and `extra_spp`, the latter only on
+    `extra_frames` when given), the optional reference, and the optional teacher render
+    (`teacher` spp) with its OIDN pseudo-reference."""
     import bpy  # noqa: F401  (imported here so --help works without bpy)
 
     t0 = time.time()
@@ -83,8 +84,11 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
     extra = {extra_level(n): n for n in extra_spp}
     if teacher:
         extra[TEACHER] = teacher
-    done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels,
-                                extra=extra, log=log)
+    try:
+        done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels,
+                                    extra=extra, extra_frames=extra_frames, log=log)
+    except ValueError as e:
+        raise SystemExit(str(e))
     if teacher:
         from .oidn import denoise_folder
 
@@ -98,6 +102,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         "resolution": list(res),
         "levels": done,
         "reference_frames": list(reference_frames or frames) if reference_spp else [],
+        "extra_frames": list(extra_frames or frames) if extra else [],
         "layout": "<scene>/<level>/frame_####.exr",
         "exr": "multilayer half PIZ" if half else "multilayer float ZIP",
         "renderer": f"Blender {scenes.bpy.app.version_string} Cycles (CPU)",
@@ -139,6 +144,10 @@ def main(argv=None):
                              "(implied by the contact-* splits)")
     common.add_argument("--reference-spp", type=int, default=0, help="also render a reference at this many spp")
     common.add_argument("--reference-frames", default=None, help="frame range of the reference (default: all)")
+    common.add_argument("--extra-frames", default=None,
+                        help="render the --extra-spp and teacher levels only on this sub-range of --frames, "
+                             "e.g. an independent, cleaner reference of frames 4-5 (default: all frames); "
+                             "the scene is still built over --frames, so it is the same scene")
     common.add_argument("--half", action="store_true", help="write half-float PIZ EXRs (smaller)")
     common.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
     common.add_argument("--layout", choices=["indoor", "outdoor"], default=None, help="force a layout")
@@ -220,6 +229,7 @@ def main(argv=None):
     frames = parse_range(a.frames)
     res = parse_res(a.res)
     ref_frames = parse_range(a.reference_frames) if a.reference_frames else None
+    extra_frames = parse_range(a.extra_frames) if a.extra_frames else None
     spp_choices = parse_spp_list(a.spp)
     res_scales = [float(v) for v in a.res_scales.split(",")]
     extra_spp = parse_spp_list(a.extra_spp)
@@ -230,7 +240,7 @@ def main(argv=None):
         teacher = teacher_spp(a.teacher_spp, spp) or None
         return render_scene(seed, out, frames, scene_res, spp, a.reference_spp, ref_frames, a.half, a.threads,
                             a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher,
-                            cycles_denoise=a.cycles_denoise, fur=fur, contact=contact)
+                            cycles_denoise=a.cycles_denoise, fur=fur, contact=contact, extra_frames=extra_frames)
 
     if a.cmd == "scene":
         print(f"wrote {one(a.seed, a.out, a.detail, a.fur, a.contact, a.calibration)}")

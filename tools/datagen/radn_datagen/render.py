@@ -68,13 +68,18 @@ def render_frame(scene, path, spp, seed, frame):
 
 
 def render_levels(scene, out_dir, scene_seed, frames, spp, reference_spp=0, reference_frames=None,
-                  levels=LEVELS, extra=None, log=print):
+                  levels=LEVELS, extra=None, extra_frames=None, log=print):
     """Renders every frame at every level (and the reference frames), skipping existing files.
     `extra` maps further level names to their sample counts (higher input levels, the teacher
-    render); each is an independent render with its own sampling seed."""
-    spps = {lv: n for lv, n in level_spp(spp).items() if lv in levels}
-    spps.update(extra or {})
-    jobs = [(lv, n, f) for lv, n in spps.items() for f in range(frames[0], frames[1] + 1)]
+    render); each is an independent render with its own sampling seed. `extra_frames` limits the
+    extra levels to a sub-range of `frames` (a cleaner, independent reference of a few frames:
+    the scene is still built over all of `frames`, since its camera shake depends on the range)."""
+    jobs = [(lv, n, f) for lv, n in level_spp(spp).items() if lv in levels for f in range(frames[0], frames[1] + 1)]
+    ef = extra_frames or frames
+    if not (frames[0] <= ef[0] <= ef[1] <= frames[1]):
+        raise ValueError(f"extra frames {ef[0]}-{ef[1]} are not within the frames {frames[0]}-{frames[1]}")
+    jobs += [(lv, n, f) for lv, n in (extra or {}).items() for f in range(ef[0], ef[1] + 1)]
+    spps = {lv: n for lv, n, _ in jobs}
     if reference_spp:
         rf = reference_frames or frames
         spps[REFERENCE] = reference_spp

@@ -229,6 +229,25 @@ def test_combine_weights_renders_by_samples_and_names_a_missing_frame(tmp_path):
     assert not (tmp_path / "out2").exists()
 
 
+def test_extra_levels_render_only_their_frames_of_the_same_scene(tmp_path):
+    out = tmp_path / "s"
+    cmd = [sys.executable, "-m", "radn_datagen", "scene", "--calibration", "--seed", "0", "--out", str(out),
+           "--frames", "1-3", "--res", "32x24", "--spp", "8", "--levels", "low", "--extra-spp", "64",
+           "--extra-frames", "2-3"]
+    subprocess.run(cmd, cwd=DATAGEN, check=True, capture_output=True)
+    assert sorted(os.listdir(out / "low")) == ["frame_0001.exr", "frame_0002.exr", "frame_0003.exr"]
+    assert sorted(os.listdir(out / "spp0064")) == ["frame_0002.exr", "frame_0003.exr"]
+    with open(out / "manifest.json") as f:
+        m = json.load(f)
+    assert m["extra_frames"] == [2, 3] and m["levels"]["spp0064"]["spp"] == 64
+    # the extra level is the same view, with less noise than the 4-spp one
+    low, extra = rgb(channels(out / "low" / "frame_0002.exr")), rgb(channels(out / "spp0064" / "frame_0002.exr"))
+    assert abs(low.mean() - extra.mean()) < 0.1 * extra.mean() + 1e-3
+    bad = subprocess.run(cmd[:-1] + ["3-5"], cwd=DATAGEN, capture_output=True, text=True)
+    assert bad.returncode != 0 and "3-5" in bad.stderr and "1-3" in bad.stderr, bad.stderr
+    assert not (out / "spp0064" / "frame_0004.exr").exists()
+
+
 def test_seeds_with_hair_are_the_first_of_the_split_whose_scene_has_hair():
     """`dataset --with-hair` renders the first S seeds of the split with particle hair: every one
     it picks has hair, every seed it skips before the last has none."""
