@@ -13,7 +13,7 @@ import sys
 import time
 
 from . import LEVELS
-from . import render, scene as scenes
+from . import hair_record, render, scene as scenes
 from .levels import extra_level, level_spp, per_scene_choice
 from .oidn import MODES as OIDN_MODES
 
@@ -78,6 +78,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
                             contact=contact)
     sc = scenes.bpy.context.scene
     render.configure(sc, exr_half=half, threads=threads, cycles_denoise=cycles_denoise)
+    hair = None if calibration else scenes.hair_fingerprint()
     for lv in levels:
         if lv not in LEVELS:
             raise SystemExit(f"unknown level '{lv}'; known: {', '.join(LEVELS)}")
@@ -86,8 +87,9 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         extra[TEACHER] = teacher
     try:
         done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels,
-                                    extra=extra, extra_frames=extra_frames, log=log)
-    except ValueError as e:
+                                    extra=extra, extra_frames=extra_frames, log=log,
+                                    before_first_render=lambda: hair_record.claim_hair(out, hair))
+    except (ValueError, hair_record.HairMismatch) as e:
         raise SystemExit(str(e))
     if teacher:
         from .oidn import denoise_folder
@@ -102,6 +104,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         "resolution": list(res),
         "levels": done,
         "reference_frames": list(reference_frames or frames) if reference_spp else [],
+        "hair_fingerprint": hair_record.recorded_hair(out) or hair,
         "extra_frames": list(extra_frames or frames) if extra else [],
         "layout": "<scene>/<level>/frame_####.exr",
         "exr": "multilayer half PIZ" if half else "multilayer float ZIP",

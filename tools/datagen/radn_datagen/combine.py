@@ -7,6 +7,8 @@ import os
 import numpy as np
 import OpenEXR
 
+from .hair_record import HairMismatch, check_same_hair
+
 BEAUTY = "Combined"
 
 
@@ -61,6 +63,10 @@ def combine_folders(sources, dst):
         for n in names:
             if not os.path.exists(os.path.join(folder, n)):
                 raise CombineError(f"'{os.path.join(folder, n)}' does not exist (it is in '{sources[0][0]}')")
+    try:  # each level folder's scene folder records its hair, where it has any
+        check_same_hair([os.path.dirname(os.path.abspath(f)) for f, _ in sources])
+    except HairMismatch as e:
+        raise CombineError(str(e))
     for n in names:
         combine_frame([(os.path.join(f, n), s) for f, s in sources], os.path.join(dst, n))
     return len(names)

@@ -68,12 +68,13 @@ def render_frame(scene, path, spp, seed, frame):
 
 
 def render_levels(scene, out_dir, scene_seed, frames, spp, reference_spp=0, reference_frames=None,
-                  levels=LEVELS, extra=None, extra_frames=None, log=print):
+                  levels=LEVELS, extra=None, extra_frames=None, log=print, before_first_render=None):
     """Renders every frame at every level (and the reference frames), skipping existing files.
     `extra` maps further level names to their sample counts (higher input levels, the teacher
     render); each is an independent render with its own sampling seed. `extra_frames` limits the
     extra levels to a sub-range of `frames` (a cleaner, independent reference of a few frames:
-    the scene is still built over all of `frames`, since its camera shake depends on the range)."""
+    the scene is still built over all of `frames`, since its camera shake depends on the range).
+    `before_first_render` is called once, before the first frame this run renders."""
     jobs = [(lv, n, f) for lv, n in level_spp(spp).items() if lv in levels for f in range(frames[0], frames[1] + 1)]
     ef = extra_frames or frames
     if not (frames[0] <= ef[0] <= ef[1] <= frames[1]):
@@ -91,6 +92,9 @@ def render_levels(scene, out_dir, scene_seed, frames, spp, reference_spp=0, refe
         done += 1
         if os.path.exists(path):
             continue
+        if before_first_render is not None:
+            before_first_render()
+            before_first_render = None
         secs = render_frame(scene, path, n, sampling_seed(scene_seed, level, f), f)
         timings.setdefault(level, []).append(secs)
         log(f"[{done}/{len(jobs)}] {path}: {n} spp in {secs:.1f} s")

@@ -334,6 +334,25 @@ def build(seed: int, frames=(1, 9), resolution=(256, 256), motion_scale=1.0, lay
     return desc
 
 
+def hair_fingerprint():
+    """A digest of where every particle-hair strand of the current scene stands (None without
+    hair). Blender 4.5 distributes hair afresh in each build, whatever the particle seed, so
+    two runs of the same `--seed` can differ in their hair alone; the manifest keeps this so a
+    resumed render or a combined reference never mixes two realisations."""
+    import hashlib
+
+    dg = bpy.context.evaluated_depsgraph_get()
+    digest, found = hashlib.sha1(), False
+    for obj in sorted(bpy.context.scene.objects, key=lambda o: o.name):
+        for psys in obj.evaluated_get(dg).particle_systems:
+            found = True
+            digest.update(f"{obj.name}/{psys.name}/{len(psys.particles)}".encode())
+            for p in psys.particles:  # the root in the emitter's space: the same at every frame
+                root = p.hair_keys[0].co if len(p.hair_keys) else p.location
+                digest.update(("%.4f %.4f %.4f;" % tuple(root)).encode())
+    return digest.hexdigest()[:16] if found else None
+
+
 def has_hair(desc) -> bool:
     """Whether a built scene carries particle hair (fur)."""
     return any(o.get("hair") for o in desc["objects"])

@@ -248,6 +248,34 @@ def test_extra_levels_render_only_their_frames_of_the_same_scene(tmp_path):
     assert not (out / "spp0064" / "frame_0004.exr").exists()
 
 
+def test_a_resumed_render_with_other_hair_is_refused_and_a_finished_one_is_left_alone(tmp_path):
+    # scene 3 000 000 carries particle hair; Blender distributes it afresh in each run
+    out = tmp_path / "s"
+    def cmd(frames):
+        return [sys.executable, "-m", "radn_datagen", "scene", "--seed", "3000000", "--out", str(out), "--frames",
+                frames, "--res", "32x32", "--spp", "8", "--levels", "low"]
+
+    subprocess.run(cmd("1-1"), cwd=DATAGEN, check=True, capture_output=True)
+    recorded = (out / "hair_fingerprint").read_text().strip()
+    with open(out / "manifest.json") as f:
+        assert json.load(f)["hair_fingerprint"] == recorded and len(recorded) == 16
+    # frames of another realisation are there: nothing left to render is fine, a new frame is not
+    (out / "hair_fingerprint").write_text("0000000000000000\n")
+    subprocess.run(cmd("1-1"), cwd=DATAGEN, check=True, capture_output=True)
+    r = subprocess.run(cmd("1-2"), cwd=DATAGEN, capture_output=True, text=True)
+    assert r.returncode != 0 and str(out) in r.stderr and "hair" in r.stderr, r.stderr
+    assert not (out / "low" / "frame_0002.exr").exists()
+    # and renders of two realisations are not combined into one reference
+    other = tmp_path / "o"
+    (other / "low").mkdir(parents=True)
+    (other / "low" / "frame_0001.exr").write_bytes((out / "low" / "frame_0001.exr").read_bytes())
+    (other / "hair_fingerprint").write_text(recorded + "\n")
+    r = subprocess.run([sys.executable, "-m", "radn_datagen", "combine", f"{out / 'low'}:4", f"{other / 'low'}:4",
+                        "--out", str(tmp_path / "c")], cwd=DATAGEN, capture_output=True, text=True)
+    assert r.returncode != 0 and "particle hair" in r.stderr, r.stderr
+    assert not (tmp_path / "c").exists()
+
+
 def test_seeds_with_hair_are_the_first_of_the_split_whose_scene_has_hair():
     """`dataset --with-hair` renders the first S seeds of the split with particle hair: every one
     it picks has hair, every seed it skips before the last has none."""
