@@ -89,7 +89,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         done = render.render_levels(sc, out, seed, frames, spp, reference_spp, reference_frames, levels=levels,
                                     extra=extra, extra_frames=extra_frames, log=log,
                                     before_first_render=lambda: hair_record.claim_hair(out, hair))
-    except (ValueError, hair_record.HairMismatch) as e:
+    except hair_record.HairMismatch as e:
         raise SystemExit(str(e))
     if teacher:
         from .oidn import denoise_folder
@@ -233,6 +233,8 @@ def main(argv=None):
     res = parse_res(a.res)
     ref_frames = parse_range(a.reference_frames) if a.reference_frames else None
     extra_frames = parse_range(a.extra_frames) if a.extra_frames else None
+    if extra_frames and not (frames[0] <= extra_frames[0] <= extra_frames[1] <= frames[1]):
+        raise SystemExit(f"--extra-frames {a.extra_frames} is not within --frames {a.frames}")
     spp_choices = parse_spp_list(a.spp)
     res_scales = [float(v) for v in a.res_scales.split(",")]
     extra_spp = parse_spp_list(a.extra_spp)

@@ -64,7 +64,7 @@ def combine_folders(sources, dst):
             if not os.path.exists(os.path.join(folder, n)):
                 raise CombineError(f"'{os.path.join(folder, n)}' does not exist (it is in '{sources[0][0]}')")
     try:  # each level folder's scene folder records its hair, where it has any
-        check_same_hair([os.path.dirname(os.path.abspath(f)) for f, _ in sources])
+        check_same_hair([os.path.dirname(os.path.normpath(os.path.abspath(f))) for f, _ in sources])
     except HairMismatch as e:
         raise CombineError(str(e))
     for n in names:

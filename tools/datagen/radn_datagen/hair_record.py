@@ -6,8 +6,7 @@ realisations, is refused instead of mixing them. No bpy here: `combine` uses it 
 import os
 
 HAIR_FILE = "hair_fingerprint"
-"""The scene folder's record of which particle-hair realisation its frames show (absent
-without hair): Blender 4.5 distributes hair afresh in each run, whatever the particle seed."""
+"""The file in a scene folder holding its frames' hair fingerprint (absent without hair)."""
 
 
 def recorded_hair(out_dir):
