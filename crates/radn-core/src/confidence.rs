@@ -53,6 +53,29 @@ impl Default for ConfidenceParams {
     }
 }
 
+impl ConfidenceParams {
+    /// These tolerances with the terms that compare sampled buffers (albedo, normal and depth)
+    /// loosened `k` times (`k` ≥ 1; below 1 counts as 1): the albedo and depth tolerances
+    /// multiplied by `k`, the normal term's cosine thresholds moved `k` times as far from 1 (at
+    /// most to −1). A noisy frame's buffers are noisy too where one pixel covers several
+    /// surfaces (fur, grass, foliage): each sample of a 4-spp pixel hits a strand or what lies
+    /// behind it, so two frames of the same fur differ by more than the strict tolerances
+    /// allow. The motion, background, colour and guide terms are left as they are: the guide
+    /// term is what catches a reflection sliding over its surface, and loosening it too let
+    /// such ghosts back in on validation (docs/guided.md, "Confidence on fur").
+    pub fn loosened(self, k: f32) -> Self {
+        let k = k.max(1.0);
+        let cos = |c: f32| (1.0 - (1.0 - c) * k).max(-1.0);
+        Self {
+            albedo: self.albedo * k,
+            normal_cos_lo: cos(self.normal_cos_lo),
+            normal_cos_hi: cos(self.normal_cos_hi),
+            depth_rel: self.depth_rel * k,
+            ..self
+        }
+    }
+}
+
 /// The guide term's tolerance ([`ConfidenceParams::guide`]) that `radn denoise` uses when a run
 /// has a guide. Chosen among 0.1–1.0 on five validation sets with the shipped guided model
 /// (docs/guided.md, "Guide confidence"): it removes the ghost of a reflection sliding over a
@@ -230,6 +253,40 @@ mod tests {
         let nrm = Plane::from_fn(4, 4, 3, |_, _, c| if c == 2 { 1.0 } else { 0.0 });
         let d = Plane::filled(4, 4, 1, depth);
         Guides::new(&color, Some(&a), Some(&nrm), Some(&d), None)
+    }
+
+    #[test]
+    fn loosening_lets_a_noisy_buffers_difference_through_and_still_rejects_another_surface() {
+        let valid = Plane::filled(4, 4, 1, 1.0);
+        let strict = ConfidenceParams::default();
+        assert_eq!(format!("{:?}", strict.loosened(1.0)), format!("{strict:?}"));
+        assert_eq!(format!("{:?}", strict.loosened(0.5)), format!("{strict:?}"));
+        let loose = strict.loosened(4.0);
+        assert!((loose.albedo - 4.0 * strict.albedo).abs() < 1e-6);
+        assert!(
+            (loose.normal_cos_lo - 0.2).abs() < 1e-6 && (loose.normal_cos_hi - 0.8).abs() < 1e-6
+        );
+        assert_eq!(loose.motion_px, strict.motion_px);
+        let guided = ConfidenceParams {
+            guide: Some(0.6),
+            ..strict
+        };
+        assert_eq!(
+            guided.loosened(4.0).guide,
+            Some(0.6),
+            "the guide term is kept"
+        );
+        assert_eq!(strict.loosened(100.0).normal_cos_lo, -1.0);
+        // fur at 4 spp: the 3×3 albedo differs by a fifth between frames (strand or skin)
+        let (c, w) = (guides(0.5, 3.0), guides(0.6, 3.1));
+        let at = |p: &ConfidenceParams| confidence(&c, &w, &valid, None, 1, p).data()[5];
+        assert!(at(&strict) < 0.35, "strict: {}", at(&strict));
+        assert!(at(&loose) > 0.8, "loosened: {}", at(&loose));
+        // another surface still reads as one: albedo 0.2 against 0.8, or depth 3 against 6
+        for other in [guides(0.8, 3.0), guides(0.2, 6.0)] {
+            let c = confidence(&guides(0.2, 3.0), &other, &valid, None, 1, &loose).data()[5];
+            assert!(c < 0.2, "{c}");
+        }
     }
 
     #[test]

@@ -51,7 +51,8 @@ fn builtin(guided: bool) -> (&'static [u8], &'static str) {
 /// The network a command runs: the model `path` (or the compiled-in one `guide` calls for) on
 /// `device`, after checking that the model and the guide options fit each other, with
 /// alignment's default appearance term: the guide term for runs with a guide, the colour term
-/// for runs without.
+/// for runs without; runs with a guide also loosen the sampled buffers' terms with the noise
+/// level ([`radn_nn::infer::sampled_terms_loosening`]).
 pub fn network_for(
     path: Option<&Path>,
     guide: &crate::input::GuideArgs,
@@ -66,6 +67,9 @@ pub fn network_for(
     // colour (docs/guided.md, "Guide confidence" and "Colour confidence")
     n.align.confidence.guide = guided.then_some(DEFAULT_GUIDE_CONFIDENCE);
     n.color_confidence = (!guided).then_some(DEFAULT_COLOR_CONFIDENCE);
+    // the sampled buffers' terms loosen with the noise level where a guide's term checks
+    // appearance (docs/guided.md, "Confidence on fur")
+    n.loosen_sampled_terms = guided.then_some(radn_nn::infer::DEFAULT_SAMPLED_TERMS_LOOSENING);
     Ok(n)
 }
 

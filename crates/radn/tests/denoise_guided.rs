@@ -145,6 +145,18 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
         worst(&ranged, &unranged) > 1e-4,
         "the range term changes nothing"
     );
+    // the sampled buffers' terms loosened with the noise level (on by default for guided
+    // runs) let more of the 4-spp side frames in, and keep AOVs summing and bands equal
+    let strict = guided_aovs_sum_and_bands_equal_whole(
+        true,
+        3,
+        "low",
+        &["--guide-mix", "off", "--loosen-confidence", "off"],
+    );
+    assert!(
+        worst(&outliers, &strict) > 1e-4,
+        "loosening the confidence changes nothing"
+    );
 }
 
 /// Denoises with guides, whole and in bands: AOVs sum to the beauty, bands equal the whole;
@@ -240,6 +252,10 @@ fn a_guide_needs_a_guided_model_and_a_guided_model_a_guide() {
     fails(
         &["--guide-confidence=0"],
         "not auto, off or a positive tolerance",
+    );
+    fails(
+        &["--loosen-confidence", "0.5"],
+        "not auto, off or a factor of at least 1",
     );
     let m = guided_model(d.path());
     let m = m.to_str().unwrap();

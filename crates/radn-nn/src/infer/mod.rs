@@ -50,6 +50,13 @@ pub struct NetworkDenoiser {
     /// noise level by the input blend's noise scale ([`NetworkDenoiser::align_params_for`]) and
     /// left out for frames the input blend leaves alone. `None`: `align`'s own setting.
     pub color_confidence: Option<f32>,
+    /// The most the confidence terms that compare sampled buffers (albedo, normal and depth) are
+    /// loosened, by the centre frame's noise level ([`sampled_terms_loosening`]):
+    /// a noisy frame's buffers differ from frame to frame where one pixel covers several
+    /// surfaces (fur, grass, foliage), and at the strict tolerances its side frames count for
+    /// little there, which leaves the window's average to flicker. `None`: `align`'s own
+    /// tolerances at every level.
+    pub loosen_sampled_terms: Option<f32>,
     /// The input blend ([`input_blend`]): per pixel, the network's result is blended with the
     /// input by the classic denoiser's Wiener gain, so that it keeps only the change the
     /// input's noise explains and does not average a clean input's detail away. The weight is
@@ -80,6 +87,22 @@ pub struct NetworkDenoiser {
     /// [`NetworkDenoiser::guide_mix`]. Ignored by other networks.
     pub guide_mix_learned: bool,
 }
+
+/// How many times [`NetworkDenoiser::align_params_for`] loosens the confidence terms that compare
+/// sampled buffers ([`radn_core::confidence::ConfidenceParams::loosened`]) for a centre frame of
+/// noise level `level`: the input blend's noise scale over its smallest, as for the colour term
+/// (1 at the cleanest frames, 2 at twice the lowest level's noise), at most `most`, and `most`
+/// for frames noisier than the input blend's range or without a level.
+pub fn sampled_terms_loosening(level: Option<f32>, most: f32) -> f32 {
+    input_blend::noise_scale_for_level(level)
+        .map_or(most, |k| k / input_blend::MIN_NOISE_SCALE)
+        .clamp(1.0, most.max(1.0))
+}
+
+/// The `most` of [`sampled_terms_loosening`] that `radn denoise` uses for runs with a guide:
+/// chosen among 1 (off), 2, 3, 4 and 8 on five validation sets (docs/guided.md, "Confidence
+/// on fur: the sampled buffers' terms loosen with the noise level").
+pub const DEFAULT_SAMPLED_TERMS_LOOSENING: f32 = 4.0;
 
 /// Smallest tile [`auto_tile`] picks (the tile every model ran with before it existed).
 const MIN_AUTO_TILE: usize = 256;
@@ -117,9 +140,14 @@ impl NetworkDenoiser {
     /// The alignment options for a window whose centre frame has noise level `level`: with
     /// [`NetworkDenoiser::color_confidence`] set, the colour term's tolerance is that base times
     /// the input blend's noise scale over its smallest (1 at the cleanest frames, up to 4), and
-    /// off for frames noisier than that, whose colour is too noisy to compare.
+    /// off for frames noisier than that, whose colour is too noisy to compare. With
+    /// [`NetworkDenoiser::loosen_sampled_terms`] set, the terms that compare sampled buffers are
+    /// loosened by [`sampled_terms_loosening`].
     pub fn align_params_for(&self, level: Option<f32>) -> AlignParams {
         let mut p = self.align;
+        if let Some(most) = self.loosen_sampled_terms {
+            p.confidence = p.confidence.loosened(sampled_terms_loosening(level, most));
+        }
         if let Some(base) = self.color_confidence {
             p.confidence.color = input_blend::noise_scale_for_level(level)
                 .map(|k| base * k / input_blend::MIN_NOISE_SCALE);
@@ -179,6 +207,7 @@ impl NetworkDenoiser {
             guide_mix_range: None,
             guide_mix_outliers: None,
             guide_mix_learned: true,
+            loosen_sampled_terms: None,
         }
     }
 
@@ -1064,6 +1093,35 @@ mod tests {
             n.align_params_for(Some(0.01)).confidence.albedo,
             n.align.confidence.albedo
         );
+    }
+
+    #[test]
+    fn the_sampled_buffers_terms_loosen_with_the_noise_level_up_to_the_most() {
+        let d = Denoiser::new(NetConfig::preset("small").unwrap(), &Device::flex());
+        let mut n = NetworkDenoiser::new(d, Device::flex());
+        let albedo = |n: &NetworkDenoiser, level| n.align_params_for(level).confidence.albedo;
+        let strict = n.align.confidence.albedo;
+        // unset: the strict tolerance at every level, 4 spp included
+        assert_eq!(albedo(&n, Some(10.0)), strict);
+        n.loosen_sampled_terms = Some(4.0);
+        let lowest = input_blend::LEVEL_AT_MIN_SCALE;
+        let edge = lowest * input_blend::MAX_NOISE_SCALE / input_blend::MIN_NOISE_SCALE;
+        // the cleanest frames keep it, twice the lowest level's noise doubles it, and frames as
+        // noisy as 4 spp (or without a level) get the most
+        assert_eq!(albedo(&n, Some(0.01)), strict);
+        assert!((albedo(&n, Some(2.0 * lowest)) - 2.0 * strict).abs() < 1e-6);
+        assert!((albedo(&n, Some(1.01 * edge)) - 4.0 * strict).abs() < 1e-6);
+        assert!((albedo(&n, None) - 4.0 * strict).abs() < 1e-6);
+        // never past the most, and the motion term is left alone
+        n.loosen_sampled_terms = Some(1.5);
+        assert!((albedo(&n, Some(2.0 * lowest)) - 1.5 * strict).abs() < 1e-6);
+        assert_eq!(
+            n.align_params_for(Some(10.0)).confidence.motion_px,
+            n.align.confidence.motion_px
+        );
+        // a guide's term does not loosen with them
+        n.align.confidence.guide = Some(0.6);
+        assert_eq!(n.align_params_for(Some(10.0)).confidence.guide, Some(0.6));
     }
 
     #[test]

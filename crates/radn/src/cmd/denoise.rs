@@ -139,6 +139,16 @@ pub struct Args {
     /// alone.
     #[arg(long, value_name = "auto|off|TOL", default_value = "auto", value_parser = parse_confidence_term)]
     pub color_confidence: ConfidenceTerm,
+    /// Network: the confidence terms that compare sampled buffers (albedo, normal and depth)
+    /// loosen with the frame's noise level, up to K times: where a pixel covers fur, grass or
+    /// foliage, a noisy frame's buffers differ from frame to frame by more than the strict
+    /// tolerances allow, and the side frames would count for little (their flicker stays). The
+    /// factor is the one the colour term loosens by (1 on the cleanest frames), at most K, and
+    /// K for frames as noisy as 4 spp; the guide's term is kept. `auto`: 4 for runs with a
+    /// guide (chosen on five validation sets: docs/guided.md, "Confidence on fur"), off
+    /// without one (not measured); `off`: the strict tolerances at every level.
+    #[arg(long, value_name = "auto|off|K", default_value = "auto", value_parser = parse_loosening)]
+    pub loosen_confidence: Loosening,
     /// Network: how alignment samples the side frames between pixels, `bilinear` or
     /// `catmull-rom` (keeps one-pixel detail through subpixel motion). Default: the way the
     /// model was trained (its description's `resampling`); another way feeds it windows it
@@ -393,6 +403,11 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         ConfidenceTerm::Tolerance(tol) => n.color_confidence = Some(tol),
         ConfidenceTerm::Off => n.color_confidence = None,
     }
+    match a.loosen_confidence {
+        Loosening::Auto => {}
+        Loosening::Off => n.loosen_sampled_terms = None,
+        Loosening::Most(k) => n.loosen_sampled_terms = Some(k),
+    }
     if let Some(r) = a.resampling {
         n.align.resampling = r.into();
     }
@@ -508,6 +523,30 @@ fn parse_confidence_term(s: &str) -> Result<ConfidenceTerm, String> {
         t => match t.parse::<f32>() {
             Ok(t) if t > 0.0 && t.is_finite() => Ok(ConfidenceTerm::Tolerance(t)),
             _ => Err(format!("'{t}' is not auto, off or a positive tolerance")),
+        },
+    }
+}
+
+/// `--loosen-confidence`'s value.
+#[derive(Clone, Copy, Debug)]
+pub enum Loosening {
+    /// The default (`crate::model::network_for`): `DEFAULT_SAMPLED_TERMS_LOOSENING` for runs
+    /// with a guide, none without one.
+    Auto,
+    /// The strict tolerances at every level.
+    Off,
+    /// Loosen by the noise level, at most this many times.
+    Most(f32),
+}
+
+/// Parses `--loosen-confidence`: `auto`, `off` or a factor of at least 1.
+fn parse_loosening(s: &str) -> Result<Loosening, String> {
+    match s {
+        "auto" => Ok(Loosening::Auto),
+        "off" => Ok(Loosening::Off),
+        k => match k.parse::<f32>() {
+            Ok(k) if k.is_finite() && k >= 1.0 => Ok(Loosening::Most(k)),
+            _ => Err(format!("'{k}' is not auto, off or a factor of at least 1")),
         },
     }
 }
