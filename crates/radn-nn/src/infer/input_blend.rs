@@ -73,6 +73,15 @@ pub fn noise_scale_for_level(level: Option<f32>) -> Option<f32> {
     (k <= MAX_NOISE_SCALE).then_some(k)
 }
 
+/// How many times a tolerance set for the cleanest frames loosens for a frame of noise level
+/// `level`: [`noise_scale_for_level`] over [`MIN_NOISE_SCALE`] (1 at the cleanest frames, up to
+/// `MAX_NOISE_SCALE / MIN_NOISE_SCALE`), `None` where the blend leaves the frame alone. The
+/// rule the colour confidence, the guide mix's range term and the sampled buffers' confidence
+/// terms share (`crate::infer::NetworkDenoiser::align_params_for`).
+pub fn loosening_for_level(level: Option<f32>) -> Option<f32> {
+    noise_scale_for_level(level).map(|k| k / MIN_NOISE_SCALE)
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -94,8 +94,8 @@ pub struct NetworkDenoiser {
 /// (1 at the cleanest frames, 2 at twice the lowest level's noise), at most `most`, and `most`
 /// for frames noisier than the input blend's range or without a level.
 pub fn sampled_terms_loosening(level: Option<f32>, most: f32) -> f32 {
-    input_blend::noise_scale_for_level(level)
-        .map_or(most, |k| k / input_blend::MIN_NOISE_SCALE)
+    input_blend::loosening_for_level(level)
+        .unwrap_or(most)
         .clamp(1.0, most.max(1.0))
 }
 
@@ -149,8 +149,7 @@ impl NetworkDenoiser {
             p.confidence = p.confidence.loosened(sampled_terms_loosening(level, most));
         }
         if let Some(base) = self.color_confidence {
-            p.confidence.color = input_blend::noise_scale_for_level(level)
-                .map(|k| base * k / input_blend::MIN_NOISE_SCALE);
+            p.confidence.color = input_blend::loosening_for_level(level).map(|k| base * k);
         }
         p
     }
@@ -165,10 +164,10 @@ impl NetworkDenoiser {
     /// guide at every level: the range keeps the centre's detail that made clean frames use
     /// the centre's guide before.
     pub fn guide_mix_range_for(&self, level: Option<f32>) -> Option<Option<f32>> {
-        let scale = input_blend::noise_scale_for_level(level);
+        let loosening = input_blend::loosening_for_level(level);
         let range = self
             .guide_mix_range
-            .and_then(|sigma| scale.map(|k| sigma * k / input_blend::MIN_NOISE_SCALE));
+            .and_then(|sigma| loosening.map(|k| sigma * k));
         let window = self.guide_mix_from.uses_window(level)
             || (self.guide_mix_range.is_some()
                 && self.guide_mix_from == guide_mix::MixGuide::FollowLevel);
