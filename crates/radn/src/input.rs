@@ -142,6 +142,43 @@ fn parse_guide(s: &str) -> Result<GuideChoice, String> {
     Ok(GuideChoice::parse(s))
 }
 
+/// `--loosen-confidence`'s value (`radn denoise`, `radn prepare`): how much alignment's
+/// confidence terms that compare sampled buffers loosen with the noise level
+/// ([`radn_nn::infer::sampled_terms_loosening`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Loosening {
+    /// The command's default for the run (`crate::model::network_for` for `radn denoise`:
+    /// `DEFAULT_SAMPLED_TERMS_LOOSENING` for runs with a guide, none without one).
+    Auto,
+    /// The strict tolerances at every level.
+    Off,
+    /// Loosen by the noise level, at most this many times.
+    Most(f32),
+}
+
+impl Loosening {
+    /// The most the terms loosen, `auto` being the command's default `auto`.
+    pub fn resolve(self, auto: Option<f32>) -> Option<f32> {
+        match self {
+            Loosening::Auto => auto,
+            Loosening::Off => None,
+            Loosening::Most(k) => Some(k),
+        }
+    }
+}
+
+/// Parses `--loosen-confidence`: `auto`, `off` or a factor of at least 1.
+pub fn parse_loosening(s: &str) -> Result<Loosening, String> {
+    match s {
+        "auto" => Ok(Loosening::Auto),
+        "off" => Ok(Loosening::Off),
+        k => match k.parse::<f32>() {
+            Ok(k) if k.is_finite() && k >= 1.0 => Ok(Loosening::Most(k)),
+            _ => Err(format!("'{k}' is not auto, off or a factor of at least 1")),
+        },
+    }
+}
+
 /// A resampling as the command line names it ([`radn_core::warp::Resampling`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ResamplingArg {

@@ -99,6 +99,23 @@ pub fn sampled_terms_loosening(level: Option<f32>, most: f32) -> f32 {
         .clamp(1.0, most.max(1.0))
 }
 
+/// `base` with the confidence terms that compare sampled buffers loosened for a centre frame of
+/// noise level `level` by [`sampled_terms_loosening`] up to `most` (`None`: `base` as it is).
+/// One rule for inference ([`NetworkDenoiser::align_params_for`]) and for the tiles a network
+/// trains on ([`crate::train::dataset::PrepareOptions::loosen_sampled_terms`]), so a network
+/// sees its training's windows at inference.
+pub fn align_params_loosened(
+    base: AlignParams,
+    most: Option<f32>,
+    level: Option<f32>,
+) -> AlignParams {
+    let mut p = base;
+    if let Some(most) = most {
+        p.confidence = p.confidence.loosened(sampled_terms_loosening(level, most));
+    }
+    p
+}
+
 /// The `most` of [`sampled_terms_loosening`] that `radn denoise` uses for runs with a guide:
 /// chosen among 1 (off), 2, 3, 4 and 8 on five validation sets (docs/guided.md, "Confidence
 /// on fur: the sampled buffers' terms loosen with the noise level").
@@ -144,10 +161,7 @@ impl NetworkDenoiser {
     /// [`NetworkDenoiser::loosen_sampled_terms`] set, the terms that compare sampled buffers are
     /// loosened by [`sampled_terms_loosening`].
     pub fn align_params_for(&self, level: Option<f32>) -> AlignParams {
-        let mut p = self.align;
-        if let Some(most) = self.loosen_sampled_terms {
-            p.confidence = p.confidence.loosened(sampled_terms_loosening(level, most));
-        }
+        let mut p = align_params_loosened(self.align, self.loosen_sampled_terms, level);
         if let Some(base) = self.color_confidence {
             p.confidence.color = input_blend::loosening_for_level(level).map(|k| base * k);
         }

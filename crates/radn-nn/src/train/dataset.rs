@@ -16,7 +16,7 @@ use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use half::f16;
-use radn_core::align::AlignParams;
+use radn_core::align::{align_window, AlignParams};
 use radn_core::frame::{FrameReader, Requirements};
 use radn_core::guide::{GuideChoice, JobGuides, OidnGuides};
 use radn_core::mapping::ChannelMapping;
@@ -26,6 +26,7 @@ use radn_core::window::WindowReader;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
+use crate::infer::align_params_loosened;
 use crate::infer::input::{color_values, features, FeatureScales};
 use crate::model::config::INPUT_CHANNELS;
 
@@ -74,6 +75,11 @@ pub struct PrepareOptions {
     /// prepared the way its description says inference aligns
     /// ([`crate::model::config::NetConfig::resampling`]).
     pub resampling: Resampling,
+    /// The most alignment's sampled-buffer terms (albedo, normal, depth) are loosened by each
+    /// window's centre noise level, as `radn denoise --loosen-confidence` aligns
+    /// ([`crate::infer::align_params_loosened`]), so a network trains on the windows it will
+    /// see; `None`: the strict tolerances at every level (every shipped model's tiles).
+    pub loosen_sampled_terms: Option<f32>,
 }
 
 impl PrepareOptions {
@@ -91,6 +97,7 @@ impl PrepareOptions {
             oidn_threads: 0,
             guide_confidence: None,
             resampling: Resampling::Bilinear,
+            loosen_sampled_terms: None,
         }
     }
 }
@@ -144,6 +151,10 @@ pub struct Manifest {
     /// tile sets from before it: bilinear.
     #[serde(default, skip_serializing_if = "Resampling::is_bilinear")]
     pub resampling: Resampling,
+    /// The most the sampled-buffer terms were loosened by the noise level
+    /// ([`PrepareOptions::loosen_sampled_terms`]); absent: strict.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loosen_sampled_terms: Option<f32>,
 }
 
 /// One training tile.
@@ -261,7 +272,17 @@ pub fn prepare(
             let mut exposures = Vec::new();
             let mut guides = Vec::new();
             for level in inputs.iter_mut() {
-                let win = level.aligned(k, &align)?;
+                let win = {
+                    let frames = level.read(k)?;
+                    let c = frames[opts.frames / 2].expect("a window's centre frame exists");
+                    let noise =
+                        FeatureScales::of_centre(&c.color, c.albedo.as_ref(), c.depth.as_ref())
+                            .noise_level;
+                    align_window(
+                        &frames,
+                        &align_params_loosened(align, opts.loosen_sampled_terms, noise),
+                    )
+                };
                 feats.push(features(&win));
                 vals.push(color_values(&win));
                 exposures.push(FeatureScales::of(&win).exposure);
@@ -343,6 +364,7 @@ pub fn prepare(
         },
         guide_confidence: align.confidence.guide,
         resampling: opts.resampling,
+        loosen_sampled_terms: opts.loosen_sampled_terms,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;

@@ -147,8 +147,8 @@ pub struct Args {
     /// K for frames as noisy as 4 spp; the guide's term is kept. `auto`: 4 for runs with a
     /// guide (chosen on five validation sets: docs/guided.md, "Confidence on fur"), off
     /// without one (not measured); `off`: the strict tolerances at every level.
-    #[arg(long, value_name = "auto|off|K", default_value = "auto", value_parser = parse_loosening)]
-    pub loosen_confidence: Loosening,
+    #[arg(long, value_name = "auto|off|K", default_value = "auto", value_parser = crate::input::parse_loosening)]
+    pub loosen_confidence: crate::input::Loosening,
     /// Network: how alignment samples the side frames between pixels, `bilinear` or
     /// `catmull-rom` (keeps one-pixel detail through subpixel motion). Default: the way the
     /// model was trained (its description's `resampling`); another way feeds it windows it
@@ -403,11 +403,7 @@ fn network_from(a: &Args) -> Result<radn_nn::infer::NetworkDenoiser> {
         ConfidenceTerm::Tolerance(tol) => n.color_confidence = Some(tol),
         ConfidenceTerm::Off => n.color_confidence = None,
     }
-    match a.loosen_confidence {
-        Loosening::Auto => {}
-        Loosening::Off => n.loosen_sampled_terms = None,
-        Loosening::Most(k) => n.loosen_sampled_terms = Some(k),
-    }
+    n.loosen_sampled_terms = a.loosen_confidence.resolve(n.loosen_sampled_terms);
     if let Some(r) = a.resampling {
         n.align.resampling = r.into();
     }
@@ -523,30 +519,6 @@ fn parse_confidence_term(s: &str) -> Result<ConfidenceTerm, String> {
         t => match t.parse::<f32>() {
             Ok(t) if t > 0.0 && t.is_finite() => Ok(ConfidenceTerm::Tolerance(t)),
             _ => Err(format!("'{t}' is not auto, off or a positive tolerance")),
-        },
-    }
-}
-
-/// `--loosen-confidence`'s value.
-#[derive(Clone, Copy, Debug)]
-pub enum Loosening {
-    /// The default (`crate::model::network_for`): `DEFAULT_SAMPLED_TERMS_LOOSENING` for runs
-    /// with a guide, none without one.
-    Auto,
-    /// The strict tolerances at every level.
-    Off,
-    /// Loosen by the noise level, at most this many times.
-    Most(f32),
-}
-
-/// Parses `--loosen-confidence`: `auto`, `off` or a factor of at least 1.
-fn parse_loosening(s: &str) -> Result<Loosening, String> {
-    match s {
-        "auto" => Ok(Loosening::Auto),
-        "off" => Ok(Loosening::Off),
-        k => match k.parse::<f32>() {
-            Ok(k) if k.is_finite() && k >= 1.0 => Ok(Loosening::Most(k)),
-            _ => Err(format!("'{k}' is not auto, off or a factor of at least 1")),
         },
     }
 }

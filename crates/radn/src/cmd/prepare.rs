@@ -43,6 +43,13 @@ pub struct Args {
     /// `resampling` says.
     #[arg(long, value_enum, default_value_t = crate::input::ResamplingArg::Bilinear)]
     pub resampling: crate::input::ResamplingArg,
+    /// Loosen alignment's confidence terms that compare sampled buffers (albedo, normal,
+    /// depth) with each window's noise level, up to K times, as `radn denoise
+    /// --loosen-confidence` does, so a guided network trains on the windows it sees at
+    /// inference: `auto` is `radn denoise`'s default for this guide (4 with a guide, off
+    /// without); `off` (the default here, as every shipped model's tiles were made): strict.
+    #[arg(long, value_name = "auto|off|K", default_value = "off", value_parser = crate::input::parse_loosening)]
+    pub loosen_confidence: crate::input::Loosening,
 }
 
 /// `--guide-confidence`'s value: a tolerance, `None` for `off`.
@@ -70,6 +77,12 @@ pub fn run(a: Args) -> Result<()> {
         oidn_threads: a.guide.oidn_threads,
         guide_confidence: a.guide_confidence.0,
         resampling: a.resampling.into(),
+        loosen_sampled_terms: a.loosen_confidence.resolve(
+            a.guide
+                .guide
+                .is_some()
+                .then_some(radn_nn::infer::DEFAULT_SAMPLED_TERMS_LOOSENING),
+        ),
         ..PrepareOptions::new(a.tile, a.tiles_per_window, a.seed)
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {
