@@ -272,20 +272,20 @@ pub fn prepare(
             let mut exposures = Vec::new();
             let mut guides = Vec::new();
             for level in inputs.iter_mut() {
-                let win = {
+                // the centre frame's scales, known before aligning (it is the frame as
+                // rendered): its noise level sets the alignment, its exposure is stored
+                let (win, scales) = {
                     let frames = level.read(k)?;
                     let c = frames[opts.frames / 2].expect("a window's centre frame exists");
-                    let noise =
-                        FeatureScales::of_centre(&c.color, c.albedo.as_ref(), c.depth.as_ref())
-                            .noise_level;
-                    align_window(
-                        &frames,
-                        &align_params_loosened(align, opts.loosen_sampled_terms, noise),
-                    )
+                    let scales =
+                        FeatureScales::of_centre(&c.color, c.albedo.as_ref(), c.depth.as_ref());
+                    let params =
+                        align_params_loosened(align, opts.loosen_sampled_terms, scales.noise_level);
+                    (align_window(&frames, &params), scales)
                 };
                 feats.push(features(&win));
                 vals.push(color_values(&win));
-                exposures.push(FeatureScales::of(&win).exposure);
+                exposures.push(scales.exposure);
                 if guided {
                     guides.push(guide_values(&win));
                 }
