@@ -9,7 +9,7 @@ use crate::frame::Frame;
 use crate::image_ops::{clamp_fireflies3, luminance};
 use crate::motion::{compose_bands, invert_band, on_screen, round_trip_error_bands};
 use crate::plane::Plane;
-use crate::warp::{mix_with_centre, warp_band, warp_bands, Resampling};
+use crate::warp::{mix_with_centre, warp_band, warp_bands_linked, Resampling, SummingPlanes};
 
 /// How many times its brightest neighbour's luminance a pixel of the centre frame may be before
 /// centre mixing treats it as a firefly and copies the clamped value instead
@@ -201,8 +201,14 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 guides_w.guide.as_ref(),
             ];
             srcs.extend(optional.iter().flatten().map(|p| to.of(p)));
+            // the beauty (source 1) and its AOVs keep summing under Catmull-Rom's clamp
+            let summing = SummingPlanes {
+                lead: 1,
+                parts: (srcs.len()..srcs.len() + tf.aovs.len()).collect(),
+            };
             srcs.extend(tf.aovs.iter().map(|a| to.of(&a.plane)));
-            let mut warped = warp_bands(&srcs, flow_c, params.resampling).into_iter();
+            let mut warped =
+                warp_bands_linked(&srcs, flow_c, params.resampling, Some(&summing)).into_iter();
             let mut next = || warped.next().expect("one warped plane per source");
             let (guide_color, color) = (next(), next());
             let mut optional = optional.map(|p| p.map(|_| next()));

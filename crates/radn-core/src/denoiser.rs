@@ -47,6 +47,12 @@ pub trait WindowDenoiser: Sync {
     fn has_frame_features(&self) -> bool {
         false
     }
+    /// Whether the method needs each frame's beauty as rendered beside what it reads
+    /// ([`Frame::rendered`]): a pass over an earlier pass's results that measures how noisy
+    /// each frame was. The sequence job then decodes each frame's original input once more.
+    fn needs_rendered(&self) -> bool {
+        false
+    }
     /// Denoises `window[radius]`; `None` marks frames beyond the sequence ends.
     fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised>;
     /// The method's band-by-band form, when it has one: the job then reads and denoises each

@@ -97,6 +97,10 @@ pub struct Frame {
     /// windows the frame belongs to reuse them instead of computing them again. Never read from
     /// files.
     pub features: Option<Plane>,
+    /// The beauty as rendered, where `color` holds an earlier pass's result and the method
+    /// asks for it ([`crate::denoiser::WindowDenoiser::needs_rendered`]): attached by the
+    /// sequence job from the original input file. Never read from this file's own layers.
+    pub rendered: Option<Plane>,
     /// The full channel names the beauty was read from (R, G, B), for writing results back.
     pub color_channels: Vec<String>,
     /// The full channel names of the renderer's own denoised beauty, where the file holds one
@@ -157,6 +161,7 @@ impl Frame {
                 .collect(),
             guide: cut(&self.guide),
             features: cut(&self.features),
+            rendered: cut(&self.rendered),
             color_channels: self.color_channels.clone(),
             denoised_channels: self.denoised_channels.clone(),
             alpha_channel: self.alpha_channel.clone(),
@@ -178,6 +183,7 @@ impl Frame {
             aovs: Vec::new(),
             guide: None,
             features: None,
+            rendered: None,
             color_channels: vec!["R".into(), "G".into(), "B".into()],
             denoised_channels: None,
             alpha_channel: None,
@@ -429,6 +435,7 @@ impl FrameReader {
             aovs,
             guide,
             features: None,
+            rendered: None,
             denoised_channels,
             color_channels,
             alpha_channel,

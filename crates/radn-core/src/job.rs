@@ -79,6 +79,11 @@ pub struct SequenceJob {
     pub replace_denoised: bool,
     /// Whether a method that can goes band by band.
     pub bands: Bands,
+    /// The original input file behind each input, where the inputs are an earlier pass's
+    /// results: a method that asks for the frames as rendered
+    /// ([`WindowDenoiser::needs_rendered`]) gets them from these. `None`: the inputs are
+    /// the frames as rendered.
+    pub rendered: Option<Vec<PathBuf>>,
 }
 
 /// What a run did.
@@ -198,9 +203,10 @@ impl SequenceJob {
         size: (usize, usize),
         mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
+        // band by band, frames carry no rendered beauty: a method that needs it runs whole frames
         if let Some(banded) = method
             .banded()
-            .filter(|_| self.bands.for_frame(size.0, size.1))
+            .filter(|_| self.bands.for_frame(size.0, size.1) && !method.needs_rendered())
         {
             return self.run_banded(method.radius(), banded, size, progress);
         }
@@ -219,6 +225,9 @@ impl SequenceJob {
         let mut windows = WindowReader::new(&self.reader, &files, r)
             .keeping_files()
             .with_guides(self.guides.clone());
+        if method.needs_rendered() {
+            windows = windows.with_rendered(self.rendered.as_deref().unwrap_or(&files));
+        }
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let total = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {

@@ -43,6 +43,7 @@ pub mod reference_noise;
 pub mod report;
 pub mod row_store;
 pub mod sequence;
+pub mod stabilize;
 pub mod warp;
 pub mod window;
 

@@ -1,8 +1,9 @@
 //! A denoising run as a user asks for it: chosen frames of a sequence, written to an output
 //! pattern, in one pass or several (paper section 3: running the network again on its own
-//! output widens the temporal reach). A frame range is denoised exactly as the same frames of
-//! a run over the whole sequence: every pass reads the neighbours beyond the range that its
-//! windows, and the later passes' windows, reach.
+//! output widens the temporal reach), optionally followed by a temporal pass over the results
+//! ([`crate::stabilize`]). A frame range is denoised exactly as the same frames of a run over
+//! the whole sequence: every pass reads the neighbours beyond the range that its windows, and
+//! the later passes' windows, reach.
 
 use std::path::PathBuf;
 
@@ -13,6 +14,7 @@ use crate::frame::FrameReader;
 use crate::guide::{JobGuides, OidnGuides};
 use crate::job::{Bands, JobReport, SequenceJob};
 use crate::sequence::SequencePattern;
+use crate::stabilize::TemporalStabilizer;
 
 /// Chosen frames of a sequence to denoise into an output pattern, in `passes` passes.
 pub struct DenoiseRun {
@@ -26,7 +28,9 @@ pub struct DenoiseRun {
     pub reader: FrameReader,
     /// Recompute frames whose output already exists.
     pub overwrite: bool,
-    /// Storage type of the denoised channels (None: the input channel's own type).
+    /// Storage type of the denoised channels (None: the input channel's own type; after
+    /// several passes, the type of the first wanted frame's beauty as rendered, for every
+    /// channel written).
     pub output_kind: Option<SampleKind>,
     /// Passes in all (at least 1): pass p + 1 denoises pass p's results.
     pub passes: usize,
@@ -35,6 +39,9 @@ pub struct DenoiseRun {
     pub oidn: Option<std::sync::Arc<OidnGuides>>,
     /// Whether a method that can goes band by band.
     pub bands: Bands,
+    /// A temporal pass over the last denoising pass's results, run after it as one more pass
+    /// ([`crate::stabilize`]); `None`: the denoising passes' results are the outputs.
+    pub stabilize: Option<TemporalStabilizer>,
 }
 
 /// Where a run is: pass `pass` of `passes` has written `done` (fractional while a frame is in
@@ -52,10 +59,12 @@ pub struct PassProgress {
 }
 
 impl DenoiseRun {
-    /// Runs every pass with `method`; `progress` is told how each pass advances. Earlier
-    /// passes write full-precision results into a scratch folder beside the output (removed
-    /// at the end); the last pass writes the outputs. A run whose outputs all exist (and that
-    /// does not overwrite) does no work, however many passes. The report is the last pass's.
+    /// Runs every pass with `method`, then the temporal pass where there is one; `progress` is
+    /// told how each pass advances. Earlier passes write full-precision results into a scratch
+    /// folder beside the output (removed at the end); the last pass writes the outputs. A run
+    /// whose outputs all exist (and that does not overwrite) does no work, however many
+    /// passes. The report is the last pass's (its repairs are those in the original inputs,
+    /// counted by the first pass).
     pub fn run(
         &self,
         method: &dyn WindowDenoiser,
@@ -66,11 +75,18 @@ impl DenoiseRun {
                 pattern: self.output.as_str().to_string(),
             });
         }
-        let passes = self.passes.max(1);
+        // the method of each pass: the denoising passes, then the temporal pass
+        let mut methods: Vec<&dyn WindowDenoiser> = vec![method; self.passes.max(1)];
+        if let Some(st) = &self.stabilize {
+            methods.push(st);
+        }
+        let passes = methods.len();
+        let radii: Vec<usize> = methods.iter().map(|m| m.radius()).collect();
+        // how far beyond a pass's frames the later passes' windows reach
+        let later_reach = |pass: usize| radii[pass..].iter().sum::<usize>();
         let numbers = &self.frames;
         // the frames every window of every pass reads
-        let r = method.radius();
-        let context = (passes - 1) * r + r + usize::from(method.prepare_needs_neighbours());
+        let context = later_reach(0) + usize::from(method.prepare_needs_neighbours());
         let all = self.input.with_context(numbers, context)?;
         let inputs: Vec<(i64, PathBuf)> = all.iter().map(|&f| (f, self.input.path(f))).collect();
         let outputs: Vec<Option<PathBuf>> = all
@@ -78,32 +94,49 @@ impl DenoiseRun {
             .map(|f| numbers.contains(f).then(|| self.output.path(*f)))
             .collect();
         let originals: std::collections::BTreeMap<i64, PathBuf> = inputs.iter().cloned().collect();
-        let job = |inputs: Vec<(i64, PathBuf)>, outputs: Vec<Option<PathBuf>>, last: bool| {
+        // the outputs' storage: after earlier passes, whose scratch results are 32-bit, the
+        // type of the beauty as rendered (the first wanted frame's) stands for "the input's own"
+        let last_kind = match self.output_kind {
+            None if passes > 1 => {
+                let (frame, file) = self.reader.read(&self.input.path(numbers[0]))?;
+                file.channel_kind(&frame.color_channels[0])
+            }
+            kind => kind,
+        };
+        // a pass over results that measures the frames as rendered gets no OIDN guides (it
+        // reads none; computing them again would cost a second OIDN run per frame)
+        let job = |inputs: Vec<(i64, PathBuf)>,
+                   outputs: Vec<Option<PathBuf>>,
+                   last: bool,
+                   over_results: bool| {
             let guides = match &self.oidn {
-                Some(g) => JobGuides::Oidn {
+                Some(g) if !over_results => JobGuides::Oidn {
                     guides: g.clone(),
                     originals: inputs.iter().map(|(f, _)| originals[f].clone()).collect(),
                 },
-                None => JobGuides::FromReader,
+                _ => JobGuides::FromReader,
             };
+            let rendered =
+                over_results.then(|| inputs.iter().map(|(f, _)| originals[f].clone()).collect());
             SequenceJob {
                 inputs,
                 outputs,
                 reader: self.reader.clone(),
                 overwrite: self.overwrite || !last,
                 output_kind: if last {
-                    self.output_kind
+                    last_kind
                 } else {
                     Some(SampleKind::F32)
                 },
                 guides,
                 replace_denoised: last,
                 bands: self.bands,
+                rendered,
             }
         };
         // the whole run is checked first, also one with nothing left to do: an output that is
         // an input under another spelling of its path is refused, not counted as done
-        let size = job(inputs.clone(), outputs.clone(), true).validate()?;
+        let size = job(inputs.clone(), outputs.clone(), true, false).validate()?;
         // a finished run (every output there) does no work, however many passes
         if !self.overwrite && outputs.iter().flatten().all(|o| o.exists()) {
             return Ok(JobReport {
@@ -141,7 +174,7 @@ impl DenoiseRun {
             .zip(last)
             .expect("the wanted frames are in their context");
         let span = |pass: usize| {
-            let e = (passes - pass) * r;
+            let e = later_reach(pass);
             first.saturating_sub(e)..(last + e + 1).min(all.len())
         };
         // what the current pass reads: positions in `all` and their files
@@ -171,7 +204,8 @@ impl DenoiseRun {
                 .clone()
                 .zip(&files)
                 .map(|(i, p)| (all[i], p.clone()));
-            let job = job(ins.collect(), outs.clone(), is_last);
+            let over_results = pass > self.passes.max(1);
+            let job = job(ins.collect(), outs.clone(), is_last, over_results);
             let frames = job.output_count();
             progress(PassProgress {
                 pass,
@@ -180,7 +214,7 @@ impl DenoiseRun {
                 frames,
             });
             // every input was checked above, and earlier passes' results are radn's own
-            let r = job.run_validated(method, size, |done, _| {
+            let r = job.run_validated(methods[pass - 1], size, |done, _| {
                 progress(PassProgress {
                     pass,
                     passes,

@@ -91,6 +91,34 @@ impl Resampling {
 /// When the planes are not bands of one size and position in one frame, or differ from the
 /// flow in width.
 pub fn warp_bands(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plane> {
+    warp_bands_linked(srcs, flow, resampling, None)
+}
+
+/// Sources of [`warp_bands_linked`] that must keep summing to another after the warp: the
+/// beauty (`lead`) and its AOVs (`parts`), indices into the sources.
+#[derive(Clone, Debug)]
+pub struct SummingPlanes {
+    /// The plane the others sum to (three channels: the beauty).
+    pub lead: usize,
+    /// The planes that sum to it (those with three channels share its clamp; others are
+    /// clamped on their own).
+    pub parts: Vec<usize>,
+}
+
+/// [`warp_bands`], keeping `summing` planes summing to their lead under Catmull-Rom
+/// resampling. The clamp to the four nearest pixels' range is not linear: clamping the beauty
+/// and each AOV on its own would break their sum wherever one of them overshoots. Each channel
+/// of the lead is clamped as before (exactly), and that clamp written as a blend from the
+/// bilinear value towards the cubic one, `b + λ·(c − b)`, where `λ` ∈ [0, 1] is what keeps the
+/// lead's channel in range; each part's same channel takes the same blend with the same `λ`.
+/// The blend is linear in the plane, so parts that summed to the lead still do. Bilinear
+/// resampling is linear already and ignores `summing`.
+pub fn warp_bands_linked(
+    srcs: &[Band],
+    flow: Band,
+    resampling: Resampling,
+    summing: Option<&SummingPlanes>,
+) -> Vec<Plane> {
     let (w, h) = (flow.plane.width(), flow.plane.height());
     let Some(first) = srcs.first() else {
         return Vec::new();
@@ -119,9 +147,22 @@ pub fn warp_bands(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plan
         fr.saturating_sub(band_y0).min(last)
     };
     let col = |c: i64| -> usize { c.clamp(0, w as i64 - 1) as usize };
+    // the lead's blend per channel, and whether each source is one of its three-channel parts
+    let summing = summing
+        .filter(|_| resampling == Resampling::CatmullRom)
+        .filter(|l| srcs[l.lead].plane.channels() == 3);
+    let part_of_lead: Vec<bool> = (0..srcs.len())
+        .map(|k| summing.is_some_and(|l| l.parts.contains(&k) && srcs[k].plane.channels() == 3))
+        .collect();
+    let mut order: Vec<usize> = (0..srcs.len()).collect();
+    if let Some(l) = summing {
+        // the lead first, so its blends exist when its parts are warped
+        order.retain(|&k| k != l.lead);
+        order.insert(0, l.lead);
+    }
     (0..h).into_par_iter().for_each_init(
-        || (Vec::new(), Vec::new()),
-        |(taps, cubic): &mut (Vec<Tap>, Vec<CubicTap>), y| {
+        || (Vec::new(), Vec::new(), Vec::new()),
+        |(taps, cubic, blend): &mut (Vec<Tap>, Vec<CubicTap>, Vec<f32>), y| {
             taps.clear();
             cubic.clear();
             for x in 0..w {
@@ -160,11 +201,19 @@ pub fn warp_bands(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plan
                             cols: [-1, 0, 1, 2].map(|d| col(x0 + d)),
                             wx: catmull_rom_weights(tx),
                             wy: catmull_rom_weights(ty),
+                            tx,
+                            ty,
                         });
                     }
                 }
             }
-            for (src, dst) in srcs.iter().zip(&dsts) {
+            for &k in &order {
+                let (src, dst) = (&srcs[k], &dsts[k]);
+                let lead = summing.is_some_and(|l| l.lead == k);
+                if lead {
+                    blend.clear();
+                    blend.resize(3 * w, 1.0);
+                }
                 for c in 0..src.plane.channels() {
                     let ch = src.plane.channel(c);
                     // SAFETY: row `y` of channel `c` of this output: `c * n + y * w .. + w`
@@ -177,6 +226,20 @@ pub fn warp_bands(srcs: &[Band], flow: Band, resampling: Resampling) -> Vec<Plan
                                 let a = ch[t.top[0]] * (1.0 - t.fx) + ch[t.top[1]] * t.fx;
                                 let b = ch[t.bottom[0]] * (1.0 - t.fx) + ch[t.bottom[1]] * t.fx;
                                 d.write(a * (1.0 - t.fy) + b * t.fy);
+                            }
+                        }
+                        Resampling::CatmullRom if lead => {
+                            let lambdas = &mut blend[c * w..(c + 1) * w];
+                            for ((d, t), l) in row.iter_mut().zip(cubic.iter()).zip(lambdas) {
+                                let (v, lambda) = t.sample_with_blend(ch);
+                                *l = lambda;
+                                d.write(v);
+                            }
+                        }
+                        Resampling::CatmullRom if part_of_lead[k] => {
+                            let lambdas = &blend[c * w..(c + 1) * w];
+                            for ((d, t), l) in row.iter_mut().zip(cubic.iter()).zip(lambdas) {
+                                d.write(t.blended(ch, *l));
                             }
                         }
                         Resampling::CatmullRom => {
@@ -229,12 +292,15 @@ struct CubicTap {
     cols: [usize; 4],
     wx: [f32; 4],
     wy: [f32; 4],
+    /// The position past the second column and row (the bilinear weights).
+    tx: f32,
+    ty: f32,
 }
 
 impl CubicTap {
-    /// The clamped Catmull-Rom value of one channel.
+    /// The unclamped Catmull-Rom value of one channel.
     #[inline]
-    fn sample(&self, ch: &[f32]) -> f32 {
+    fn cubic(&self, ch: &[f32]) -> f32 {
         let mut acc = 0.0;
         for (r, wy) in self.rows.iter().zip(self.wy) {
             let row = &ch[*r..];
@@ -244,6 +310,49 @@ impl CubicTap {
                 + row[self.cols[3]] * self.wx[3];
             acc += v * wy;
         }
+        acc
+    }
+
+    /// The bilinear value of one channel from the four nearest pixels.
+    #[inline]
+    fn bilinear(&self, ch: &[f32]) -> f32 {
+        let (top, bottom) = (&ch[self.rows[1]..], &ch[self.rows[2]..]);
+        let (c0, c1) = (self.cols[1], self.cols[2]);
+        let a = top[c0] * (1.0 - self.tx) + top[c1] * self.tx;
+        let b = bottom[c0] * (1.0 - self.tx) + bottom[c1] * self.tx;
+        a * (1.0 - self.ty) + b * self.ty
+    }
+
+    /// [`CubicTap::sample`], and the blend `λ` that gives it from the bilinear value `b` and
+    /// the cubic one `c` as `b + λ·(c − b)` (1 where the clamp did nothing).
+    #[inline]
+    fn sample_with_blend(&self, ch: &[f32]) -> (f32, f32) {
+        let v = self.sample(ch);
+        let c = self.cubic(ch);
+        if v == c {
+            return (v, 1.0);
+        }
+        let b = self.bilinear(ch);
+        // b lies in the four pixels' range and c outside it, so c ≠ b and λ ∈ [0, 1)
+        let lambda = ((v - b) / (c - b)).clamp(0.0, 1.0);
+        (v, if lambda.is_finite() { lambda } else { 0.0 })
+    }
+
+    /// The value `b + λ·(c − b)` of one channel: linear in the channel, for planes that must
+    /// keep summing to the plane `λ` came from.
+    #[inline]
+    fn blended(&self, ch: &[f32], lambda: f32) -> f32 {
+        if lambda == 1.0 {
+            return self.cubic(ch);
+        }
+        let b = self.bilinear(ch);
+        b + lambda * (self.cubic(ch) - b)
+    }
+
+    /// The clamped Catmull-Rom value of one channel.
+    #[inline]
+    fn sample(&self, ch: &[f32]) -> f32 {
+        let acc = self.cubic(ch);
         let near = [
             ch[self.rows[1] + self.cols[1]],
             ch[self.rows[1] + self.cols[2]],
@@ -368,6 +477,61 @@ mod tests {
         let cubic = shifted(&step, 0.4, 0.3, Resampling::CatmullRom);
         assert!(cubic.data().iter().all(|&v| (0.1..=4.0).contains(&v)));
         assert!(cubic.get(3, 4, 0) == 0.1 && cubic.get(12, 4, 0) == 4.0);
+    }
+
+    #[test]
+    fn catmull_rom_keeps_aovs_summing_to_the_beauty_where_the_clamp_acts() {
+        // two AOVs with step edges at different places, the beauty their sum, warped by a
+        // subpixel flow that varies per pixel: the clamp acts on each plane somewhere
+        let (w, h) = (24, 16);
+        let diffuse = Plane::from_fn(w, h, 3, |x, y, c| {
+            if (x + y / 3) % 7 < 3 {
+                0.05 + 0.1 * c as f32
+            } else {
+                2.0 + c as f32
+            }
+        });
+        let specular = Plane::from_fn(w, h, 3, |x, y, c| {
+            if (x * 2 + y) % 9 < 2 {
+                8.0 - c as f32
+            } else {
+                0.02
+            }
+        });
+        let beauty = Plane::from_fn(w, h, 3, |x, y, c| {
+            diffuse.get(x, y, c) + specular.get(x, y, c)
+        });
+        let flow = Plane::from_fn(w, h, 2, |x, y, c| {
+            [0.37 + 0.05 * (y % 5) as f32, -0.61 + 0.03 * (x % 4) as f32][c]
+        });
+        let bands = [
+            Band::whole(&diffuse),
+            Band::whole(&beauty),
+            Band::whole(&specular),
+        ];
+        let summing = SummingPlanes {
+            lead: 1,
+            parts: vec![0, 2],
+        };
+        let flow_band = Band::whole(&flow);
+        let linked = warp_bands_linked(&bands, flow_band, Resampling::CatmullRom, Some(&summing));
+        let alone = warp_bands(&bands, flow_band, Resampling::CatmullRom);
+        // the beauty is exactly what it was
+        assert_eq!(linked[1].data(), alone[1].data());
+        // clamped alone, the AOVs no longer sum to it; linked, they do
+        let off = |d: &Plane, s: &Plane| {
+            (0..beauty.data().len())
+                .map(|i| (d.data()[i] + s.data()[i] - linked[1].data()[i]).abs())
+                .fold(0.0f32, f32::max)
+        };
+        assert!(off(&alone[0], &alone[2]) > 0.1, "the clamp never acted");
+        assert!(off(&linked[0], &linked[2]) < 1e-5);
+        // bilinear is linear anyway and ignores the link
+        let bl = warp_bands_linked(&bands, flow_band, Resampling::Bilinear, Some(&summing));
+        assert_eq!(
+            bl[0].data(),
+            warp_bands(&bands, flow_band, Resampling::Bilinear)[0].data()
+        );
     }
 
     #[test]

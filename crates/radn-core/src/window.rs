@@ -20,6 +20,7 @@ pub struct WindowReader<'a> {
     radius: usize,
     keep_files: bool,
     guides: JobGuides,
+    rendered: Option<&'a [PathBuf]>,
     frames: BTreeMap<usize, (Frame, Option<ExrFile>)>,
     size: Option<(usize, usize)>,
     repaired: usize,
@@ -34,6 +35,7 @@ impl<'a> WindowReader<'a> {
             radius,
             keep_files: false,
             guides: JobGuides::FromReader,
+            rendered: None,
             frames: BTreeMap::new(),
             size: None,
             repaired: 0,
@@ -51,6 +53,14 @@ impl<'a> WindowReader<'a> {
     /// reader's own guide layer is read with the frame in any case).
     pub fn with_guides(mut self, guides: JobGuides) -> Self {
         self.guides = guides;
+        self
+    }
+
+    /// Attaches each frame's beauty as rendered ([`Frame::rendered`]) as it is decoded, from
+    /// `originals` (one per file, in order): the file itself where it is its own original,
+    /// else the original decoded once more.
+    pub fn with_rendered(mut self, originals: &'a [PathBuf]) -> Self {
+        self.rendered = Some(originals);
         self
     }
 
@@ -85,6 +95,16 @@ impl<'a> WindowReader<'a> {
                         guides.of_frame(&frame, original)?
                     } else {
                         guides.of_file(self.reader, original)?
+                    });
+                }
+                if let Some(originals) = self.rendered {
+                    let original = &originals[k];
+                    frame.rendered = Some(if *original == self.files[k] {
+                        frame.color.clone()
+                    } else {
+                        let (rendered, _) = self.reader.read(original)?;
+                        rendered.ensure_size(w, h)?;
+                        rendered.color
                     });
                 }
                 self.repaired += frame.repaired;

@@ -79,4 +79,27 @@ fn frame_ranges_denoise_as_the_whole_sequence_does() {
         &["--method", "classic", "--frames", "6-7"],
     );
     assert_same(dir, "classic", "classic-range", 6..=7);
+
+    // the temporal pass over the results: the network also denoises the frames the pass's
+    // windows read, two beyond each end of the range, and the pass changes the result
+    denoise(dir, "stab", &["--tile", "0", "--stabilize", "0.3"]);
+    denoise(
+        dir,
+        "stab-range",
+        &["--tile", "0", "--stabilize", "0.3", "--frames", "5-6"],
+    );
+    assert_same(dir, "stab", "stab-range", 5..=6);
+    assert!(!dir.join("stab-range/f_0004.exr").exists());
+    let beauty = |run: &str| {
+        ExrFile::read(dir.join(format!("{run}/f_0005.exr")))
+            .unwrap()
+            .channel_f32("ViewLayer.Combined.R")
+            .unwrap()
+    };
+    let moved = beauty("stab")
+        .iter()
+        .zip(beauty("whole0"))
+        .map(|(a, b)| (a - b).abs())
+        .fold(0.0f32, f32::max);
+    assert!(moved > 1e-4, "the temporal pass changed nothing ({moved})");
 }

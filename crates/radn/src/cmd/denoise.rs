@@ -8,6 +8,7 @@ use radn_core::denoiser::WindowDenoiser;
 use radn_core::frame::Requirements;
 use radn_core::passes::DenoiseRun;
 use radn_core::sequence::{sequence_files, SequencePattern};
+use radn_core::stabilize::{TemporalStabilizer, DEFAULT_STRENGTH as DEFAULT_STABILIZE_STRENGTH};
 use radn_nn::infer::guide_mix::{MixGuide, DEFAULT_OUTLIER_RAMP};
 use radn_nn::infer::input_blend::{BlendStrength, InputBlend};
 
@@ -149,6 +150,18 @@ pub struct Args {
     /// without one (not measured); `off`: the strict tolerances at every level.
     #[arg(long, value_name = "auto|off|K", default_value = "auto", value_parser = crate::input::parse_loosening)]
     pub loosen_confidence: crate::input::Loosening,
+    /// A temporal pass over the results, after the denoising passes: each frame's result
+    /// averaged with its neighbours' results aligned onto it, each side frame by
+    /// exp(−(d/σ)²) of its colour's distance from the centre's (display-mapped), where σ is A
+    /// times the local RMS of the frame's render noise. It removes the frame-to-frame error
+    /// that the window's motion vectors could not (fur, grass, through glass) and keeps what
+    /// differs by more than the noise explains. AOVs and alpha get the beauty's weights, so
+    /// they still sum. `auto`: 0.3 for a run with --guide (chosen on five validation sets:
+    /// docs/guided.md, "A temporal pass over the results, with a range that follows the
+    /// noise"), off for others; `off`: none. Costs a second decoding of each input and a
+    /// scratch copy of each result; it runs whole frames (memory follows the frame).
+    #[arg(long, value_name = "auto|off|A", default_value = "auto", value_parser = parse_stabilize)]
+    pub stabilize: StabilizeChoice,
     /// Network: how alignment samples the side frames between pixels, `bilinear` or
     /// `catmull-rom` (keeps one-pixel detail through subpixel motion). Default: the way the
     /// model was trained (its description's `resampling`); another way feeds it windows it
@@ -287,6 +300,13 @@ pub fn run(a: Args) -> Result<()> {
              UNet), so memory follows the frame"
         );
     }
+    let guided = a.method == Method::Network && a.guide.guide.is_some();
+    let stabilize = match a.stabilize {
+        StabilizeChoice::Auto => guided.then_some(DEFAULT_STABILIZE_STRENGTH),
+        StabilizeChoice::Off => None,
+        StabilizeChoice::Strength(s) => Some(s),
+    }
+    .map(TemporalStabilizer::new);
     let oidn = a.guide.apply(&mut reader)?;
     let run = DenoiseRun {
         input: SequencePattern::parse_or_folder(&a.input)?,
@@ -302,6 +322,7 @@ pub fn run(a: Args) -> Result<()> {
         },
         oidn,
         bands: a.bands.into(),
+        stabilize,
     };
     let t = std::time::Instant::now();
     let mut bar: Option<(usize, indicatif::ProgressBar)> = None;
@@ -486,6 +507,26 @@ fn parse_mix_range(s: &str) -> Result<MixRange, String> {
         Ok(v) if v.is_finite() && v > 0.0 => Ok(MixRange::Sigma(v)),
         _ => Err(format!("'{s}' is not auto, off or a positive number")),
     }
+}
+
+/// `--stabilize`'s value.
+#[derive(Clone, Copy, Debug)]
+pub enum StabilizeChoice {
+    /// The temporal pass with its default strength for a run with a guide, none for others.
+    Auto,
+    /// No temporal pass.
+    Off,
+    /// The temporal pass with this strength.
+    Strength(f32),
+}
+
+/// Parses `--stabilize`: `auto`, `off` or a positive strength.
+fn parse_stabilize(s: &str) -> Result<StabilizeChoice, String> {
+    Ok(match parse_mix_range(s)? {
+        MixRange::Auto => StabilizeChoice::Auto,
+        MixRange::Off => StabilizeChoice::Off,
+        MixRange::Sigma(v) => StabilizeChoice::Strength(v),
+    })
 }
 
 /// Parses an `auto|off` switch: true for `auto`.

@@ -60,6 +60,7 @@ pub fn run(a: Args) -> Result<()> {
             guides: radn_core::guide::JobGuides::FromReader,
             replace_denoised: true,
             bands: radn_core::job::Bands::Auto,
+            rendered: None,
         });
     }
     let total: usize = jobs.iter().map(|j| j.output_count()).sum();
