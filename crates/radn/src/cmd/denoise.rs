@@ -331,10 +331,13 @@ pub fn run(a: Args) -> Result<()> {
             if let Some((_, pb)) = bar.take() {
                 pb.finish_and_clear();
             }
-            let pb = crate::progress::fine_frames(
-                p.frames as u64,
-                &format!("pass {}/{}", p.pass, p.passes),
-            );
+            // the temporal pass, where there is one, comes after the denoising passes
+            let label = if p.pass > run.passes {
+                "temporal pass".to_string()
+            } else {
+                format!("pass {}/{}", p.pass, run.passes)
+            };
+            let pb = crate::progress::fine_frames(p.frames as u64, &label);
             bar = Some((p.pass, pb));
         }
         if let Some((_, pb)) = &bar {
