@@ -181,6 +181,7 @@ impl DenoiseRun {
         let mut reading = 0..all.len();
         let mut files: Vec<PathBuf> = inputs.into_iter().map(|(_, p)| p).collect();
         let mut report = JobReport::default();
+        let mut repaired = 0;
         for pass in 1..=passes {
             let is_last = pass == passes;
             let outs: Vec<Option<PathBuf>> = reading
@@ -222,8 +223,12 @@ impl DenoiseRun {
                     frames,
                 })
             })?;
+            // NaN/Inf are repaired in the original inputs, which only the first pass reads
+            if pass == 1 {
+                repaired = r.repaired;
+            }
             if is_last {
-                report = r;
+                report = JobReport { repaired, ..r };
             } else {
                 reading = span(pass);
                 files = outs.into_iter().flatten().collect();

@@ -379,3 +379,35 @@ fn warp_writes_a_window_and_clamps_at_the_start() {
     // no temporary files left
     assert_eq!(std::fs::read_dir(d.path().join("o")).unwrap().count(), 1);
 }
+
+#[test]
+fn repairs_in_the_inputs_are_reported_after_several_passes() {
+    let d = tempfile::tempdir().unwrap();
+    let input = sequence(d.path(), 5);
+    cycles_frame(&d.path().join("beauty.0003.exr"), 3, W, H, &[], true);
+    // the later passes read radn's own results, the temporal pass the inputs once more: the
+    // count is the inputs' own, once
+    for (name, extra) in [
+        ("one", &["--stabilize", "off"][..]),
+        ("two", &["--passes", "2", "--stabilize", "off"][..]),
+        ("stabilized", &["--stabilize", "0.3"][..]),
+    ] {
+        let out = format!("{}/{name}/f_####.exr", d.path().display());
+        let mut args = vec!["denoise", "-i", &input, "-o", &out];
+        args.extend(extra);
+        let res = Command::new(env!("CARGO_BIN_EXE_radn"))
+            .args(&args)
+            .output()
+            .unwrap();
+        let said = String::from_utf8_lossy(&res.stdout);
+        assert!(
+            res.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&res.stderr)
+        );
+        assert!(
+            said.contains("repaired 2 NaN/Inf input samples"),
+            "{name}: {said}"
+        );
+    }
+}
