@@ -34,7 +34,7 @@ use crate::denoiser::{Denoised, WindowDenoiser};
 use crate::error::{Error, Result};
 use crate::frame::Frame;
 use crate::image_ops::{box_mean, luminance};
-use crate::metrics::tonemap;
+use crate::metrics::{tonemap, tonemap_plane};
 use crate::plane::Plane;
 use crate::warp::Resampling;
 
@@ -86,11 +86,11 @@ impl TemporalStabilizer {
     }
 
     /// σ per pixel: `strength` × the local RMS of (rendered − result) in mapped luminance, at
-    /// least `floor`.
-    fn sigma(&self, rendered: &Plane, result: &Plane) -> Plane {
-        let (w, h) = (result.width(), result.height());
-        let lr = luminance(&mapped(rendered));
-        let lc = luminance(&mapped(result));
+    /// least `floor`; `result_mapped` is the result already mapped by [`tonemap`].
+    fn sigma(&self, rendered: &Plane, result_mapped: &Plane) -> Plane {
+        let (w, h) = (result_mapped.width(), result_mapped.height());
+        let lr = luminance(&tonemap_plane(rendered));
+        let lc = luminance(result_mapped);
         let sq: Vec<f32> = lr
             .data()
             .par_iter()
@@ -141,8 +141,8 @@ impl TemporalStabilizer {
         })?;
         let win = align_window(window, &self.align);
         let c = win.centre();
-        let sigma = self.sigma(rendered, &c.color);
-        let centre_mapped = mapped(&c.color);
+        let centre_mapped = tonemap_plane(&c.color);
+        let sigma = self.sigma(rendered, &centre_mapped);
         let sides: Vec<(&AlignedFrame, Vec<f32>)> = win
             .frames
             .iter()
@@ -180,16 +180,6 @@ impl TemporalStabilizer {
                 .collect(),
         })
     }
-}
-
-/// Every value of `p` mapped by [`tonemap`] (display space, as PSNR measures).
-fn mapped(p: &Plane) -> Plane {
-    Plane::from_vec(
-        p.width(),
-        p.height(),
-        p.channels(),
-        p.data().par_iter().map(|&v| tonemap(v)).collect(),
-    )
 }
 
 impl WindowDenoiser for TemporalStabilizer {
