@@ -169,29 +169,36 @@ impl ChannelMapping {
         Ok(())
     }
 
-    /// Picks the built-in preset that fits a file's channels best: the first whose colour and
-    /// albedo both resolve, else the first whose colour resolves.
+    /// Picks the built-in preset that fits a file's channels best: among the presets whose
+    /// colour resolves, the one whose motion vectors resolve (without them a window cannot be
+    /// aligned), then the one that resolves most of albedo, normal, depth and alpha; the first
+    /// built-in wins a tie. Several presets share a bare `R,G,B,A` beauty, and only their motion
+    /// and auxiliary layers tell them apart.
     pub fn detect(channel_names: &[String]) -> Option<ChannelMapping> {
-        let all: Vec<ChannelMapping> = Self::builtin_names()
-            .into_iter()
-            .filter_map(Self::builtin)
-            .collect();
-        let fits = |m: &ChannelMapping, with_albedo: bool| {
+        let found = |layers: &[String], channels: &[String]| {
+            // several view layers holding it is a fit too: `--layer` chooses among them
             matches!(
-                resolve(&m.color.layer, &m.color.channels, channel_names, None),
-                Ok(Some(_))
-            ) && (!with_albedo
-                || m.albedo.as_ref().is_some_and(|a| {
-                    matches!(
-                        resolve(&a.layer, &a.channels, channel_names, None),
-                        Ok(Some(_))
-                    )
-                }))
+                resolve(layers, channels, channel_names, None),
+                Ok(Some(_)) | Err(_)
+            )
         };
-        all.iter()
-            .find(|m| fits(m, true))
-            .or_else(|| all.iter().find(|m| fits(m, false)))
-            .cloned()
+        let plane = |s: &Option<PlaneSpec>| s.as_ref().is_some_and(|s| found(&s.layer, &s.channels));
+        let motion = |s: &Option<MotionSpec>| s.as_ref().is_some_and(|s| found(&s.layer, &s.channels));
+        let mut best: Option<((bool, usize), ChannelMapping)> = None;
+        for m in Self::builtin_names().into_iter().filter_map(Self::builtin) {
+            if !found(&m.color.layer, &m.color.channels) {
+                continue;
+            }
+            let aux = [&m.albedo, &m.normal, &m.depth, &m.alpha]
+                .into_iter()
+                .filter(|s| plane(s))
+                .count();
+            let score = (motion(&m.motion_prev) || motion(&m.motion_next), aux);
+            if best.as_ref().is_none_or(|(b, _)| score > *b) {
+                best = Some((score, m));
+            }
+        }
+        best.map(|(_, m)| m)
     }
 }
 
@@ -374,6 +381,79 @@ mod tests {
         let g = names(&["R", "G", "B", "A"]);
         let d = ChannelMapping::detect(&g).unwrap().name;
         assert!(d == "arnold" || d == "generic" || d == "renderman", "{d}");
+    }
+
+    /// Each built-in preset's own layout, as its renderer writes it.
+    fn layout_of(preset: &str) -> Vec<String> {
+        let rgb = |l: &str, c: [&str; 3]| c.map(|c| format!("{l}.{c}")).to_vec();
+        let mut v: Vec<String> = match preset {
+            "cycles" => {
+                let l = |x: &str| format!("ViewLayer.{x}");
+                let mut v = rgb(&l("Combined"), ["R", "G", "B"]);
+                v.push(l("Combined.A"));
+                v.extend(rgb(&l("Noisy Image"), ["R", "G", "B"]));
+                v.extend(rgb(&l("Denoising Albedo"), ["R", "G", "B"]));
+                v.extend(rgb(&l("Denoising Normal"), ["X", "Y", "Z"]));
+                v.push(l("Denoising Depth.Z"));
+                v.extend(["X", "Y", "Z", "W"].map(|c| l(&format!("Vector.{c}"))));
+                v
+            }
+            "arnold" => {
+                let mut v = names(&["R", "G", "B", "A", "Z"]);
+                v.extend(rgb("albedo", ["R", "G", "B"]));
+                v.extend(rgb("N", ["X", "Y", "Z"]));
+                v.extend(names(&["motionvector.R", "motionvector.G"]));
+                v
+            }
+            "renderman" => {
+                let mut v = names(&["R", "G", "B", "A", "Z"]);
+                v.extend(rgb("albedo", ["R", "G", "B"]));
+                v.extend(rgb("normal", ["R", "G", "B"]));
+                v.extend(names(&["forward.R", "forward.G", "backward.R", "backward.G"]));
+                v
+            }
+            "karma" => {
+                let mut v = rgb("C", ["R", "G", "B"]);
+                v.push("C.A".into());
+                v.extend(rgb("albedo", ["R", "G", "B"]));
+                v.extend(rgb("N", ["R", "G", "B"]));
+                v.extend(names(&["Pz", "motionvector.R", "motionvector.G"]));
+                v
+            }
+            "generic" => {
+                let mut v = names(&["R", "G", "B", "A", "Z"]);
+                v.extend(rgb("albedo", ["R", "G", "B"]));
+                v.extend(rgb("N", ["X", "Y", "Z"]));
+                v.extend(names(&["motion.X", "motion.Y"]));
+                v
+            }
+            p => panic!("no layout for preset {p}"),
+        };
+        v.sort();
+        v
+    }
+
+    #[test]
+    fn every_builtin_preset_is_detected_on_its_own_layout() {
+        for preset in ChannelMapping::builtin_names() {
+            let layout = layout_of(preset);
+            let m = ChannelMapping::detect(&layout).unwrap();
+            assert_eq!(m.name, preset, "layout {layout:?}");
+            // and the layout really holds the preset's motion vectors
+            let spec = m.motion_prev.as_ref().or(m.motion_next.as_ref()).unwrap();
+            assert!(
+                matches!(resolve(&spec.layer, &spec.channels, &layout, None), Ok(Some(_))),
+                "{preset}: motion not found"
+            );
+        }
+    }
+
+    #[test]
+    fn a_generic_file_without_motion_still_resolves_to_a_preset() {
+        // no preset's motion fits: the one that resolves most auxiliary buffers is chosen
+        let mut v = names(&["R", "G", "B", "A", "Z"]);
+        v.extend(names(&["albedo.R", "albedo.G", "albedo.B", "N.X", "N.Y", "N.Z"]));
+        assert!(ChannelMapping::detect(&v).is_some());
     }
 
     #[test]

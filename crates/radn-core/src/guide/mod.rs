@@ -77,6 +77,19 @@ impl OidnGuides {
         })
     }
 
+    /// The library in use, for messages: "Intel Open Image Denoise 2.5.1 (PATH)".
+    pub fn describe(&self) -> String {
+        let d = self
+            .denoiser
+            .lock()
+            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        format!(
+            "Intel Open Image Denoise {} ({})",
+            d.version(),
+            d.library().display()
+        )
+    }
+
     /// The guide of `frame` (its beauty, albedo and normal as read from `path`).
     pub fn of_frame(&self, frame: &Frame, path: &Path) -> Result<Plane> {
         let mut d = self

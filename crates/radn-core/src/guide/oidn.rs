@@ -4,10 +4,11 @@
 //! The library is opened when a guide is first asked for, not linked: radn builds and runs
 //! without OIDN, and only `--guide oidn` needs it. Where it is looked for, in order:
 //! `$RADN_OIDN_LIBRARY` (the library file, or the folder holding it; when set, nothing else is
-//! tried), `$OIDN_DIR/lib`, the
-//! system's loader path (`libOpenImageDenoise.so.2`), and the `pyoidn` wheel of the `python3`
-//! on `PATH` (which `scripts/setup` installs: `pyoidn==2.5.1.0` ships OIDN 2.5.1 with its CPU
-//! device and TBB). The wheel's library finds its core and device modules in its own folder.
+//! tried), `$OIDN_DIR/lib`, the system's loader path (`libOpenImageDenoise.so.2`), the `pyoidn`
+//! wheel of the `python3` on `PATH` (which `scripts/setup` installs: `pyoidn==2.5.1.0` ships
+//! OIDN 2.5.1 with its CPU device and TBB), Blender's own copy in the `bpy` wheel of that
+//! `python3` (`bpy/lib/`), and the one beside a `blender` on `PATH` (Blender 4.x bundles
+//! OIDN 2.x). Each library finds its core and device modules in its own folder.
 //!
 //! Each frame is filtered as OIDN recommends for final frames: the albedo and the normal are
 //! denoised first, each by its own `RT` filter, and the beauty filter (HDR) then runs with
@@ -154,25 +155,64 @@ fn candidates() -> Vec<(PathBuf, String)> {
         out.push((Path::new(&d).join("lib").join(name), "OIDN_DIR".into()));
     }
     out.push((PathBuf::from(name), "the system loader path".into()));
-    if let Some(d) = pyoidn_lib_dir() {
+    let (pyoidn, bpy) = python_lib_dirs();
+    if let Some(d) = pyoidn {
         out.push((d.join(name), "the pyoidn wheel".into()));
+    }
+    if let Some(d) = bpy {
+        out.push((d.join(name), "Blender's bpy wheel".into()));
+    }
+    for d in blender_lib_dirs() {
+        out.push((d.join(name), "the Blender on PATH".into()));
     }
     out
 }
 
-/// The `lib/` folder of the `pyoidn` wheel installed for `python3`, if any.
-fn pyoidn_lib_dir() -> Option<PathBuf> {
-    let out = std::process::Command::new("python3")
+/// The `lib/` folders of the `pyoidn` and `bpy` wheels installed for `python3`, where present
+/// (one interpreter start for both; nothing is imported).
+fn python_lib_dirs() -> (Option<PathBuf>, Option<PathBuf>) {
+    let Ok(out) = std::process::Command::new("python3")
         .args([
             "-c",
-            "import importlib.util as u, os; s = u.find_spec('pyoidn'); \
-             print(os.path.join(os.path.dirname(s.origin), 'oidn', 'lib') if s else '')",
+            "import importlib.util as u, os\n\
+             for m, sub in (('pyoidn', ('oidn', 'lib')), ('bpy', ('lib',))):\n\
+             \x20   s = u.find_spec(m)\n\
+             \x20   print(os.path.join(os.path.dirname(s.origin), *sub) if s and s.origin else '')",
         ])
         .stderr(std::process::Stdio::null())
         .output()
-        .ok()?;
-    let dir = String::from_utf8(out.stdout).ok()?.trim().to_string();
-    (!dir.is_empty()).then(|| PathBuf::from(dir))
+    else {
+        return (None, None);
+    };
+    let text = String::from_utf8_lossy(&out.stdout);
+    let mut lines = text.lines().map(|l| {
+        let l = l.trim();
+        (!l.is_empty()).then(|| PathBuf::from(l))
+    });
+    (lines.next().flatten(), lines.next().flatten())
+}
+
+/// Where a Blender install on `PATH` keeps its bundled libraries: `lib/` beside the executable
+/// (Linux), `../Resources/lib` (macOS), `blender.shared/` (Windows).
+fn blender_lib_dirs() -> Vec<PathBuf> {
+    let exe = if cfg!(windows) { "blender.exe" } else { "blender" };
+    let Some(path) = std::env::var_os("PATH") else {
+        return Vec::new();
+    };
+    std::env::split_paths(&path)
+        .map(|d| d.join(exe))
+        .filter(|p| p.is_file())
+        .filter_map(|p| std::fs::canonicalize(p).ok())
+        .filter_map(|p| p.parent().map(Path::to_path_buf))
+        .flat_map(|d| {
+            [
+                d.join("lib"),
+                d.join("../Resources/lib"),
+                d.join("blender.shared"),
+            ]
+        })
+        .filter(|d| d.is_dir())
+        .collect()
 }
 
 /// One OIDN CPU device and the three `RT` filters of prefiltered denoising (albedo, normal,
