@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Prints the ablation's Markdown tables (docs/ablation.md) from the runs' outputs.
+"""Prints the ablation's Markdown tables (docs/research/ablation.md) from the runs' outputs.
 
 usage: ablation_table.py RUNS CONFIG...   (RUNS/CONFIG/metrics.csv and RUNS/CONFIG/util_*.json)
 """

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Prints the comparison table of docs/benchmarks.md from scripts/bench-compare's rows.jsonl:
+"""Prints the comparison table of docs/research/benchmarks.md from scripts/bench-compare's rows.jsonl:
 one block for the shipped sample and one for the held-aside test scenes (means over scenes)."""
 import json
 import sys

@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Renders radn's default training dataset (resumable: re-run to continue) and its
 # pseudo-references. Usage: [TRAIN_SCENES=48 VAL_SCENES=6 TEST_SCENES=6] tools/datagen/make_dataset.sh [OUT]
-# (OUT defaults to /work/data/radn; the shipped default model used 28/4/3 scenes, see models/README.md)
+# (OUT defaults to /work/data/radn; the shipped default model used 28/4/3 scenes, see docs/research/model-history.md)
 set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/radn}"

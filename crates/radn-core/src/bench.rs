@@ -73,7 +73,7 @@ pub fn time_windows(
             }
             refine_times.push(t.elapsed().as_secs_f64());
             let p = ClassicParams {
-                refine: None,
+                flow_refine: None,
                 ..ClassicParams::default()
             };
             let t = Instant::now();

@@ -62,7 +62,7 @@ impl ConfidenceParams {
     /// behind it, so two frames of the same fur differ by more than the strict tolerances
     /// allow. The motion, background, colour and guide terms are left as they are: the guide
     /// term is what catches a reflection sliding over its surface, and loosening it too let
-    /// such ghosts back in on validation (docs/guided.md, "Confidence on fur").
+    /// such ghosts back in on validation (docs/research/guided.md, "Confidence on fur").
     pub fn loosened(self, k: f32) -> Self {
         let k = k.max(1.0);
         let cos = |c: f32| (1.0 - (1.0 - c) * k).max(-1.0);
@@ -75,19 +75,6 @@ impl ConfidenceParams {
         }
     }
 }
-
-/// The guide term's tolerance ([`ConfidenceParams::guide`]) that `radn denoise` uses when a run
-/// has a guide. Chosen among 0.1–1.0 on five validation sets with the shipped guided model
-/// (docs/guided.md, "Guide confidence"): it removes the ghost of a reflection sliding over a
-/// turning metal face (up to +0.5 dB on such a frame) and costs at most 0.06 dB elsewhere.
-pub const DEFAULT_GUIDE_CONFIDENCE: f32 = 0.6;
-
-/// The colour term's tolerance ([`ConfidenceParams::color`]) at the cleanest frames that
-/// `radn denoise` uses when a network run has no guide; it loosens with the frame's noise level
-/// (`radn_nn::infer::NetworkDenoiser::align_params_for`). Chosen among 0.3–1.0 on five
-/// validation sets with the default model (docs/guided.md, "Colour confidence"): +1.0 and
-/// +1.9 dB at 11 and 32 spp on val-256, where a reflection slides over a turning metal face.
-pub const DEFAULT_COLOR_CONFIDENCE: f32 = 0.5;
 
 /// The buffers confidence compares, 3×3 prefiltered so render noise does not read as change.
 #[derive(Clone, Debug)]

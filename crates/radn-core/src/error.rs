@@ -7,6 +7,8 @@ pub type Result<T, E = Error> = std::result::Result<T, E>;
 
 /// Everything that can go wrong reading, checking, aligning or writing frames.
 #[derive(Debug, thiserror::Error)]
+// each variant's fields are what its message names, in the message's words
+#[allow(missing_docs)]
 pub enum Error {
     /// The file does not exist or cannot be opened.
     #[error("cannot open '{path}': {source}")]

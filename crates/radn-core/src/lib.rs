@@ -16,6 +16,8 @@
 //!   reference's own noise taken out ([`reference_noise`]) and the HTML report ([`report`]);
 //!   throughput of the data path ([`mod@bench`]).
 
+#![deny(missing_docs)]
+
 pub mod align;
 pub mod banding;
 pub mod bench;
@@ -43,6 +45,7 @@ pub mod reference_noise;
 pub mod report;
 pub mod row_store;
 pub mod sequence;
+pub mod setting;
 pub mod stabilize;
 pub mod warp;
 pub mod window;

@@ -182,8 +182,10 @@ impl ChannelMapping {
                 Ok(Some(_)) | Err(_)
             )
         };
-        let plane = |s: &Option<PlaneSpec>| s.as_ref().is_some_and(|s| found(&s.layer, &s.channels));
-        let motion = |s: &Option<MotionSpec>| s.as_ref().is_some_and(|s| found(&s.layer, &s.channels));
+        let plane =
+            |s: &Option<PlaneSpec>| s.as_ref().is_some_and(|s| found(&s.layer, &s.channels));
+        let motion =
+            |s: &Option<MotionSpec>| s.as_ref().is_some_and(|s| found(&s.layer, &s.channels));
         let mut best: Option<((bool, usize), ChannelMapping)> = None;
         for m in Self::builtin_names().into_iter().filter_map(Self::builtin) {
             if !found(&m.color.layer, &m.color.channels) {
@@ -409,7 +411,12 @@ mod tests {
                 let mut v = names(&["R", "G", "B", "A", "Z"]);
                 v.extend(rgb("albedo", ["R", "G", "B"]));
                 v.extend(rgb("normal", ["R", "G", "B"]));
-                v.extend(names(&["forward.R", "forward.G", "backward.R", "backward.G"]));
+                v.extend(names(&[
+                    "forward.R",
+                    "forward.G",
+                    "backward.R",
+                    "backward.G",
+                ]));
                 v
             }
             "karma" => {
@@ -442,7 +449,10 @@ mod tests {
             // and the layout really holds the preset's motion vectors
             let spec = m.motion_prev.as_ref().or(m.motion_next.as_ref()).unwrap();
             assert!(
-                matches!(resolve(&spec.layer, &spec.channels, &layout, None), Ok(Some(_))),
+                matches!(
+                    resolve(&spec.layer, &spec.channels, &layout, None),
+                    Ok(Some(_))
+                ),
                 "{preset}: motion not found"
             );
         }
@@ -452,7 +462,9 @@ mod tests {
     fn a_generic_file_without_motion_still_resolves_to_a_preset() {
         // no preset's motion fits: the one that resolves most auxiliary buffers is chosen
         let mut v = names(&["R", "G", "B", "A", "Z"]);
-        v.extend(names(&["albedo.R", "albedo.G", "albedo.B", "N.X", "N.Y", "N.Z"]));
+        v.extend(names(&[
+            "albedo.R", "albedo.G", "albedo.B", "N.X", "N.Y", "N.Z",
+        ]));
         assert!(ChannelMapping::detect(&v).is_some());
     }
 

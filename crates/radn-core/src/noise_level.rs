@@ -1,12 +1,12 @@
 //! A frame's noise level: one number that says how noisy a whole frame is, so that what must
 //! follow the sample count (the network's input blend, [`crate::classic::wiener`]) can follow it
 //! per frame rather than per pixel (a 128-spp frame's dark pixels are as noisy, relatively, as a
-//! 4-spp frame's bright ones, yet want the settings of a clean frame: docs/detail.md).
+//! 4-spp frame's bright ones, yet want the settings of a clean frame: docs/research/detail.md).
 //!
 //! The level is the 99th percentile over the frame of the relative noise variance of its
 //! luminance, divided by the albedo where the frame has one (so that texture does not read as
 //! noise). A high percentile, not the median: the noisiest pixels are where a frame's error is,
-//! and a frame that is mostly smooth and bright has a tiny median even at 4 spp (docs/detail.md:
+//! and a frame that is mostly smooth and bright has a tiny median even at 4 spp (docs/research/detail.md:
 //! on such a test scene the median read as a 128-spp frame and the blend gave the noise back). Each
 //! pixel's variance comes from the horizontal second difference `x[i-1] − 2·x[i] + x[i+1]`, which
 //! cancels a linear ramp and has variance `6σ²` on independent pixel noise, divided by the

@@ -1,4 +1,4 @@
-//! A temporal pass over a denoiser's results (`radn denoise --stabilize`): each frame's result
+//! A temporal pass over a denoiser's results (a model recipe's `stabilize`): each frame's result
 //! averaged with its neighbours' results aligned onto it, where they agree with it within the
 //! error its own render noise leaves.
 //!
@@ -24,8 +24,7 @@
 //! term is the stricter test and confidence rejects exactly the fur whose flicker this removes.
 //!
 //! The same weights apply to alpha and every AOV, so AOVs that summed to the beauty still do.
-//! Chosen on five validation sets (docs/guided.md, "A temporal pass over the results, with a
-//! range that follows the noise").
+//! Its settings are tuned per model (`radn_nn::recipe`).
 
 use rayon::prelude::*;
 
@@ -38,27 +37,16 @@ use crate::metrics::{tonemap, tonemap_plane};
 use crate::plane::Plane;
 use crate::warp::Resampling;
 
-/// The range term's scale: σ is this many local RMS of the centre's render noise (in mapped
-/// luminance). Chosen among 0.1, 0.2, 0.3 and 0.5 on five validation sets with the shipped
-/// guided model (docs/guided.md, "A temporal pass over the results, with a range that follows
-/// the noise").
-pub const DEFAULT_STRENGTH: f32 = 0.3;
-
-/// The smallest σ, in mapped display values: a result whose input had no noise at all keeps
-/// neighbours only where they match it to this.
-pub const DEFAULT_FLOOR: f32 = 0.0005;
-
-/// Radius of the box over which the centre's render noise is measured (a 5×5 box).
-pub const DEFAULT_NOISE_RADIUS: usize = 2;
-
 /// The temporal pass over results ([module docs](self)).
 #[derive(Clone, Debug)]
 pub struct TemporalStabilizer {
-    /// σ in local RMS of the centre's render noise ([`DEFAULT_STRENGTH`]).
+    /// The range term's scale: σ is this many local RMS of the centre's render noise (in
+    /// mapped luminance).
     pub strength: f32,
-    /// The smallest σ ([`DEFAULT_FLOOR`]).
+    /// The smallest σ, in mapped display values: a result whose input had no noise at all
+    /// keeps neighbours only where they match it to this.
     pub floor: f32,
-    /// The noise box's radius ([`DEFAULT_NOISE_RADIUS`]).
+    /// Radius of the box over which the centre's render noise is measured.
     pub noise_radius: usize,
     /// Frames on each side of the centre.
     pub radius: usize,
@@ -69,13 +57,13 @@ pub struct TemporalStabilizer {
 }
 
 impl TemporalStabilizer {
-    /// The pass with range scale `strength` and every other setting at its default: two frames
-    /// on each side, like the network's window.
-    pub fn new(strength: f32) -> Self {
+    /// The pass with range scale `strength`, smallest σ `floor` and noise box radius
+    /// `noise_radius`, over two frames on each side like the network's window.
+    pub fn new(strength: f32, floor: f32, noise_radius: usize) -> Self {
         Self {
             strength,
-            floor: DEFAULT_FLOOR,
-            noise_radius: DEFAULT_NOISE_RADIUS,
+            floor,
+            noise_radius,
             radius: 2,
             align: AlignParams {
                 mix_centre: false,
@@ -267,7 +255,7 @@ mod tests {
     #[test]
     fn a_results_frame_to_frame_error_is_averaged_away_where_its_render_was_noisy() {
         let frames: Vec<Frame> = (0..5).map(|t| result_frame(t, 0.01, 0.3)).collect();
-        let out = TemporalStabilizer::new(DEFAULT_STRENGTH)
+        let out = TemporalStabilizer::new(0.3, 0.0005, 2)
             .stabilize(&window(&frames))
             .unwrap();
         let before = rms_inside(&frames[2].color, &truth(2));
@@ -287,7 +275,7 @@ mod tests {
                 f
             })
             .collect();
-        let st = TemporalStabilizer::new(DEFAULT_STRENGTH);
+        let st = TemporalStabilizer::new(0.3, 0.0005, 2);
         let out = st.stabilize(&window(&frames)).unwrap();
         // only neighbours within the floor of the centre are averaged in: no pixel moves by
         // more than a tenth of the frames' error
@@ -358,7 +346,7 @@ mod tests {
                 f
             })
             .collect();
-        let out = TemporalStabilizer::new(DEFAULT_STRENGTH)
+        let out = TemporalStabilizer::new(0.3, 0.0005, 2)
             .stabilize(&window(&frames))
             .unwrap();
         assert!(
@@ -384,7 +372,7 @@ mod tests {
             Some(&frames[1]),
             Some(&frames[2]),
         ];
-        let out = TemporalStabilizer::new(DEFAULT_STRENGTH)
+        let out = TemporalStabilizer::new(0.3, 0.0005, 2)
             .stabilize(&first)
             .unwrap();
         let before = rms_inside(&frames[0].color, &truth(2));
@@ -393,7 +381,7 @@ mod tests {
         let mut bare = frames[0].clone();
         bare.rendered = None;
         bare.path = "shot/frame_0003.exr".into();
-        let e = TemporalStabilizer::new(DEFAULT_STRENGTH)
+        let e = TemporalStabilizer::new(0.3, 0.0005, 2)
             .stabilize(&[None, None, Some(&bare), Some(&frames[1]), Some(&frames[2])])
             .unwrap_err()
             .to_string();

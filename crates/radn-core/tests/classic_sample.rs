@@ -31,7 +31,7 @@ fn read(level: &str, req: Requirements) -> Vec<Frame> {
 /// Denoises the evaluated frames with a window of the given radius.
 fn denoise(frames: &[Frame], radius: usize, p: &ClassicParams) -> Vec<Plane> {
     let mut refined: Vec<Frame> = frames.to_vec();
-    if let Some(rp) = &p.refine {
+    if let Some(rp) = &p.flow_refine {
         for (k, frame) in refined.iter_mut().enumerate() {
             let prev = k.checked_sub(1).map(|j| &frames[j]);
             refine_frame_motion(

@@ -7,6 +7,8 @@ pub type Result<T, E = NnError> = std::result::Result<T, E>;
 
 /// What can go wrong building, loading or running a network.
 #[derive(Debug, thiserror::Error)]
+// each variant's fields are what its message names, in the message's words
+#[allow(missing_docs)]
 pub enum NnError {
     /// A network configuration is inconsistent.
     #[error("invalid network configuration: {0}")]

@@ -5,17 +5,21 @@
 //! curves). [`device`] says where it runs (CPU or CUDA). [`mod@bench`] measures the network's throughput, [`profile`] where a denoising run's
 //! time goes.
 
+#![deny(missing_docs)]
+
 pub mod bench;
 pub mod device;
 pub mod error;
 pub mod infer;
 pub mod model;
 pub mod profile;
+pub mod recipe;
 pub mod train;
 
 pub use error::{NnError, Result};
 pub use model::config::NetConfig;
 pub use model::{Denoiser, Prediction};
+pub use recipe::Recipe;
 
 /// The burn version radn-nn is built on, re-exported so callers use the same one.
 pub use burn;

@@ -1,6 +1,6 @@
 //! Where a network denoiser's time goes, per stage: each stage's wall time is added to a
 //! per-thread tally while it runs ([`timed`]), and [`take`] hands the tally over and clears
-//! it, so `radn denoise -v` can print one line per frame (docs/benchmarks.md, "Where the time
+//! it, so `radn denoise -v` can print one line per frame (docs/research/benchmarks.md, "Where the time
 //! goes"). A frame's stages run on the thread that denoises it (the parallel work happens
 //! inside them), so the per-thread tally is that frame's. Timing costs two clock reads per
 //! stage call, a few hundred per frame.

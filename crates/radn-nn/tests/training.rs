@@ -757,5 +757,5 @@ fn tiles_record_their_resampling_and_a_network_trains_only_on_tiles_aligned_its_
         radn_nn::model::store::load(&d.path().join("cr/model.safetensors"), &Device::flex())
             .unwrap();
     let n = radn_nn::infer::NetworkDenoiser::new(loaded, Device::flex());
-    assert_eq!(n.align.resampling, Resampling::CatmullRom);
+    assert_eq!(n.resampling(), Resampling::CatmullRom);
 }

@@ -2,7 +2,7 @@
 //! NaN/Inf policy, turned into the frame reader they describe; and where a guided network's
 //! guides come from.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
@@ -73,7 +73,8 @@ impl ChannelArgs {
     }
 }
 
-/// Where a guided network's per-frame guide comes from.
+/// Where a guided network's per-frame guide comes from (`radn prepare`, `radn eval`; `radn
+/// denoise` chooses its own with `--guide auto`).
 #[derive(clap::Args, Clone, Debug)]
 pub struct GuideArgs {
     /// Network: a per-frame spatial estimate of the beauty that a guided model reads beside
@@ -90,18 +91,8 @@ pub struct GuideArgs {
 }
 
 impl GuideArgs {
-    /// Sets `reader` to read the guide layer, if the guide is one, and opens Intel Open Image
-    /// Denoise, if the guide is its.
-    pub fn apply(&self, reader: &mut FrameReader) -> Result<Option<Arc<OidnGuides>>> {
-        reader.guide = self.guide.layer();
-        Ok(match self.guide {
-            GuideChoice::Oidn => Some(Arc::new(OidnGuides::new(self.oidn_threads)?)),
-            _ => None,
-        })
-    }
-
     /// What a [`radn_core::window::WindowReader`] over `paths` needs to attach guides the
-    /// reader does not read: the OIDN guides `oidn` ([`GuideArgs::apply`]) of those files.
+    /// reader does not read: the OIDN guides `oidn` of those files.
     pub fn window_guides(
         oidn: Option<Arc<OidnGuides>>,
         paths: &[PathBuf],
@@ -114,69 +105,10 @@ impl GuideArgs {
             None => radn_core::guide::JobGuides::FromReader,
         }
     }
-
-    /// Checks that `model` (shown as `label`) and the guide go together: a guided model needs
-    /// a guide, and a guide needs a guided model.
-    pub fn check_model(&self, model: &radn_nn::model::Denoiser, label: &Path) -> Result<()> {
-        match (model.config.inputs.guide, self.guide.is_some()) {
-            (true, false) => Err(anyhow!(
-                "{} reads a guide: give one with --guide oidn, --guide denoised or --guide LAYER",
-                label.display()
-            )),
-            (false, true) => Err(anyhow!(
-                "{} reads no guide, so --guide {} would change nothing: drop --guide or pass a \
-                 guided model with --model",
-                label.display(),
-                match &self.guide {
-                    GuideChoice::Layer(l) => l.as_str(),
-                    GuideChoice::Oidn => "oidn",
-                    _ => "denoised",
-                }
-            )),
-            _ => Ok(()),
-        }
-    }
 }
 
 fn parse_guide(s: &str) -> Result<GuideChoice, String> {
     Ok(GuideChoice::parse(s))
-}
-
-/// `--loosen-confidence`'s value (`radn denoise`, `radn prepare`): how much alignment's
-/// confidence terms that compare sampled buffers loosen with the noise level
-/// ([`radn_nn::infer::sampled_terms_loosening`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub enum Loosening {
-    /// The command's default for the run (`crate::model::network_for` for `radn denoise`:
-    /// `DEFAULT_SAMPLED_TERMS_LOOSENING` for runs with a guide, none without one).
-    Auto,
-    /// The strict tolerances at every level.
-    Off,
-    /// Loosen by the noise level, at most this many times.
-    Most(f32),
-}
-
-impl Loosening {
-    /// The most the terms loosen, `auto` being the command's default `auto`.
-    pub fn resolve(self, auto: Option<f32>) -> Option<f32> {
-        match self {
-            Loosening::Auto => auto,
-            Loosening::Off => None,
-            Loosening::Most(k) => Some(k),
-        }
-    }
-}
-
-/// Parses `--loosen-confidence`: `auto`, `off` or a factor of at least 1.
-pub fn parse_loosening(s: &str) -> Result<Loosening, String> {
-    match s {
-        "auto" => Ok(Loosening::Auto),
-        "off" => Ok(Loosening::Off),
-        k => match k.parse::<f32>() {
-            Ok(k) if k.is_finite() && k >= 1.0 => Ok(Loosening::Most(k)),
-            _ => Err(format!("'{k}' is not auto, off or a factor of at least 1")),
-        },
-    }
 }
 
 /// A resampling as the command line names it ([`radn_core::warp::Resampling`]).

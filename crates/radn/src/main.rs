@@ -1,5 +1,7 @@
 //! `radn`: temporal Monte Carlo denoising of rendered EXR sequences.
 
+#![deny(missing_docs)]
+
 mod cmd;
 mod input;
 mod model;
@@ -59,7 +61,7 @@ fn end_quietly_on_broken_pipes() {
 /// mmap threshold (at most 32 MiB) with fresh pages from the kernel and returns them on free, so
 /// each of the network's tile-sized activations (about 100 MB for a 256-pixel tile of five
 /// frames) cost a page fault per 4 KiB: 76 s of system time of a 200 s 1080p frame
-/// (docs/benchmarks.md, "Where the time goes"). With the thresholds raised, freed blocks are
+/// (docs/research/benchmarks.md, "Where the time goes"). With the thresholds raised, freed blocks are
 /// reused; the peak resident memory stays that of the largest tile's working set.
 fn reuse_large_allocations() {
     #[cfg(all(target_os = "linux", target_env = "gnu"))]

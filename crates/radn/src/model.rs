@@ -1,23 +1,25 @@
-//! The network model a command runs: a file the user names, or the default model compiled in.
+//! The network a command runs: a file the user names, or one of the models compiled in; and
+//! which path `radn denoise` takes when the guide is left to it (the guided path wherever an
+//! OIDN library can be found).
 
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
-use anyhow::Result;
-use radn_core::confidence::{DEFAULT_COLOR_CONFIDENCE, DEFAULT_GUIDE_CONFIDENCE};
+use anyhow::{anyhow, Result};
+use radn_core::guide::{GuideChoice, OidnGuides};
 use radn_nn::burn::tensor::Device;
+use radn_nn::infer::NetworkDenoiser;
 use radn_nn::model::Denoiser;
 
-/// The default model (`models/default.safetensors`, see `models/README.md`), compiled into the
-/// binary so `radn denoise` works without a model flag and without files beside the executable.
+/// The unguided default model (`models/default.safetensors`, card `models/default.md`),
+/// compiled into the binary so `radn denoise` works without files beside the executable.
 pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../../models/default.safetensors");
 
-/// The name errors and reports use for the compiled-in model.
+/// The name errors and reports use for the compiled-in unguided model.
 pub const DEFAULT_MODEL_NAME: &str = "<built-in default model>";
 
-/// The guided model compiled in like the default: what `radn denoise --guide …` runs when no
-/// `--model` is given. It is guided-lean (`models/guided-lean.safetensors`, see
-/// `models/README.md`), the guided model whose whole command stays within twice OIDN's time;
-/// the larger `models/guided.safetensors` is 0.07 dB ahead on validation at five times its cost.
+/// The guided model compiled in like the default (`models/guided-lean.safetensors`, card
+/// `models/guided-lean.md`): what runs over OIDN when no `--model` is given.
 pub const GUIDED_MODEL: &[u8] = include_bytes!("../../../models/guided-lean.safetensors");
 
 /// The name errors and reports use for the compiled-in guided model.
@@ -48,36 +50,148 @@ fn builtin(guided: bool) -> (&'static [u8], &'static str) {
     }
 }
 
-/// The network a command runs: the model `path` (or the compiled-in one `guide` calls for) on
-/// `device`, after checking that the model and the guide options fit each other, with
-/// alignment's default appearance term: the guide term for runs with a guide, the colour term
-/// for runs without; runs with a guide also loosen the sampled buffers' terms with the noise
-/// level ([`radn_nn::infer::sampled_terms_loosening`]).
-pub fn network_for(
-    path: Option<&Path>,
-    guide: &crate::input::GuideArgs,
-    device: radn_nn::device::ComputeDevice,
-) -> Result<radn_nn::infer::NetworkDenoiser> {
-    let device = device.open()?;
-    let guided = guide.guide.is_some();
-    let d = load_for(path, guided, &device)?;
-    guide.check_model(&d, &label_for(path, guided))?;
-    let mut n = radn_nn::infer::NetworkDenoiser::new(d, device);
-    // alignment's appearance terms: the guides where the run has them, else the frames' own
-    // colour (docs/guided.md, "Guide confidence" and "Colour confidence")
-    n.align.confidence.guide = guided.then_some(DEFAULT_GUIDE_CONFIDENCE);
-    n.color_confidence = (!guided).then_some(DEFAULT_COLOR_CONFIDENCE);
-    // the sampled buffers' terms loosen with the noise level where a guide's term checks
-    // appearance (docs/guided.md, "Confidence on fur")
-    n.loosen_sampled_terms = guided.then_some(radn_nn::infer::DEFAULT_SAMPLED_TERMS_LOOSENING);
-    Ok(n)
-}
-
 /// How a model choice is shown to the user: the file, or the compiled-in guided model for a
 /// run that asked for a guide (`guided`), else the compiled-in default.
 pub fn label_for(path: Option<&Path>, guided: bool) -> PathBuf {
     path.map(Path::to_path_buf)
         .unwrap_or_else(|| PathBuf::from(builtin(guided).1))
+}
+
+/// Which guide a run asked for: a choice, or `auto` (the best path this machine allows).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub enum GuideRequest {
+    /// OIDN where a library is found (or the model needs a guide), none otherwise.
+    Auto,
+    /// This guide (`none` included).
+    Given(GuideChoice),
+}
+
+impl std::str::FromStr for GuideRequest {
+    type Err = String;
+
+    fn from_str(s: &str) -> Result<Self, String> {
+        Ok(match s {
+            "auto" => GuideRequest::Auto,
+            s => GuideRequest::Given(GuideChoice::parse(s)),
+        })
+    }
+}
+
+/// The network a run takes, its guide, and the line that tells the user which path it is.
+pub struct ChosenPath {
+    /// The network, running its model's recipe.
+    pub network: NetworkDenoiser,
+    /// The guide its frames get.
+    pub guide: GuideChoice,
+    /// OIDN, opened, where the guide is OIDN's.
+    pub oidn: Option<Arc<OidnGuides>>,
+    /// One line: which path, which model, which library.
+    pub summary: String,
+}
+
+/// The hint a run without OIDN gives: how to get the guided path.
+pub const OIDN_HINT: &str = "the guided path (better) needs Intel Open Image Denoise 2.x: \
+     `pip install pyoidn` or Blender's `bpy`, a Blender on PATH, or RADN_OIDN_LIBRARY";
+
+/// Chooses the network and its guide: a given guide is taken as given (with the built-in
+/// model that reads it, unless `model` names one); `auto` takes the guided path when the
+/// model reads a guide or, without `model`, whenever an OIDN library opens, and the unguided
+/// model otherwise. The model and the guide are checked against each other.
+pub fn choose_path(
+    model: Option<&Path>,
+    request: &GuideRequest,
+    oidn_threads: usize,
+    device: radn_nn::device::ComputeDevice,
+) -> Result<ChosenPath> {
+    let dev = device.open()?;
+    let (denoiser, guide, oidn) = match request {
+        GuideRequest::Given(guide) => {
+            let d = load_for(model, guide.is_some(), &dev)?;
+            check_model(&d, guide, &label_for(model, guide.is_some()))?;
+            let oidn = open_oidn_for(guide, oidn_threads)?;
+            (d, guide.clone(), oidn)
+        }
+        GuideRequest::Auto => match model {
+            Some(p) => {
+                let d = load_for(Some(p), false, &dev)?;
+                let guide = if d.config.inputs.guide {
+                    GuideChoice::Oidn
+                } else {
+                    GuideChoice::None
+                };
+                let oidn = open_oidn_for(&guide, oidn_threads)?;
+                (d, guide, oidn)
+            }
+            None => match OidnGuides::new(oidn_threads) {
+                Ok(o) => (
+                    load_for(None, true, &dev)?,
+                    GuideChoice::Oidn,
+                    Some(Arc::new(o)),
+                ),
+                Err(e) => {
+                    tracing::debug!("no OIDN: {e}");
+                    (load_for(None, false, &dev)?, GuideChoice::None, None)
+                }
+            },
+        },
+    };
+    let label = label_for(model, guide.is_some());
+    let summary = match (&guide, &oidn) {
+        (_, Some(o)) => format!(
+            "radn: guided path: {} over {}",
+            label.display(),
+            o.describe()
+        ),
+        (GuideChoice::None, _) if *request == GuideRequest::Auto && model.is_none() => {
+            format!("radn: unguided path: {}; {OIDN_HINT}", label.display())
+        }
+        (GuideChoice::None, _) => format!("radn: unguided path: {}", label.display()),
+        (GuideChoice::Denoised, _) => format!(
+            "radn: guided path: {} over the renderer's denoised layer",
+            label.display()
+        ),
+        (GuideChoice::Layer(l), _) => {
+            format!("radn: guided path: {} over layer '{l}'", label.display())
+        }
+        (GuideChoice::Oidn, None) => unreachable!("an OIDN guide has its library open"),
+    };
+    Ok(ChosenPath {
+        network: NetworkDenoiser::new(denoiser, dev),
+        guide,
+        oidn,
+        summary,
+    })
+}
+
+/// OIDN opened for `guide` where it is OIDN's (an error saying what to install where the
+/// library is missing).
+fn open_oidn_for(guide: &GuideChoice, threads: usize) -> Result<Option<Arc<OidnGuides>>> {
+    Ok(match guide {
+        GuideChoice::Oidn => Some(Arc::new(OidnGuides::new(threads)?)),
+        _ => None,
+    })
+}
+
+/// Checks that `model` (shown as `label`) and `guide` go together: a guided model needs a
+/// guide, and a guide needs a guided model.
+pub fn check_model(model: &Denoiser, guide: &GuideChoice, label: &Path) -> Result<()> {
+    match (model.config.inputs.guide, guide.is_some()) {
+        (true, false) => Err(anyhow!(
+            "{} reads a guide: give one with --guide oidn, --guide denoised or --guide LAYER",
+            label.display()
+        )),
+        (false, true) => Err(anyhow!(
+            "{} reads no guide, so --guide {} would change nothing: drop --guide or pass a \
+             guided model with --model",
+            label.display(),
+            match guide {
+                GuideChoice::Layer(l) => l.as_str(),
+                GuideChoice::Oidn => "oidn",
+                _ => "denoised",
+            }
+        )),
+        _ => Ok(()),
+    }
 }
 
 #[cfg(test)]
@@ -99,5 +213,23 @@ mod tests {
             "the built-in guided model reads a guide"
         );
         assert_eq!(label_for(None, true), PathBuf::from(GUIDED_MODEL_NAME));
+    }
+
+    #[test]
+    fn a_given_guide_and_model_must_fit() {
+        let cpu = radn_nn::device::ComputeDevice::Cpu;
+        let none = GuideRequest::Given(GuideChoice::None);
+        let p = choose_path(None, &none, 1, cpu).unwrap();
+        assert!(!p.network.denoiser.config.inputs.guide && p.oidn.is_none());
+        assert!(p.summary.contains("unguided") && !p.summary.contains("pyoidn"));
+        let layer = GuideRequest::Given(GuideChoice::Layer("Combined".into()));
+        let p = choose_path(None, &layer, 1, cpu).unwrap();
+        assert!(p.network.denoiser.config.inputs.guide);
+        assert!(p.summary.contains("layer 'Combined'"), "{}", p.summary);
+        assert_eq!("auto".parse::<GuideRequest>(), Ok(GuideRequest::Auto));
+        assert_eq!(
+            "none".parse::<GuideRequest>(),
+            Ok(GuideRequest::Given(GuideChoice::None))
+        );
     }
 }

@@ -114,9 +114,11 @@ fn warp_args<'a>(input: &'a str, out: &'a str) -> Vec<&'a str> {
     ]
 }
 
-/// `radn denoise` (the default network) on the same input, writing `out` (a pattern).
+/// `radn denoise` (the unguided network) on the same input, writing `out` (a pattern).
 fn denoise_args<'a>(input: &'a str, out: &'a str) -> Vec<&'a str> {
-    vec!["denoise", "-i", input, "-o", out, "--preset", "cycles"]
+    vec![
+        "denoise", "-i", input, "-o", out, "--preset", "cycles", "--guide", "none",
+    ]
 }
 
 /// Runs `warp` and `denoise` on a bad input and returns both errors. Denoise writes to a
@@ -388,9 +390,12 @@ fn repairs_in_the_inputs_are_reported_after_several_passes() {
     // the later passes read radn's own results, the temporal pass the inputs once more: the
     // count is the inputs' own, once
     for (name, extra) in [
-        ("one", &["--stabilize", "off"][..]),
-        ("two", &["--passes", "2", "--stabilize", "off"][..]),
-        ("stabilized", &["--stabilize", "0.3"][..]),
+        ("one", &["--guide", "none"][..]),
+        ("two", &["--guide", "none", "--passes", "2"][..]),
+        (
+            "stabilized",
+            &["--guide", "none", "--tune", "stabilize=0.3"][..],
+        ),
     ] {
         let out = format!("{}/{name}/f_####.exr", d.path().display());
         let mut args = vec!["denoise", "-i", &input, "-o", &out];

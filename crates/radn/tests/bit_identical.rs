@@ -103,8 +103,12 @@ fn check_golden(name: &str, got: &str) {
         eprintln!("recorded {}", path.display());
         return;
     }
-    let want = std::fs::read_to_string(&path)
-        .unwrap_or_else(|e| panic!("{}: {e} (record it with RADN_GOLDEN_WRITE=1)", path.display()));
+    let want = std::fs::read_to_string(&path).unwrap_or_else(|e| {
+        panic!(
+            "{}: {e} (record it with RADN_GOLDEN_WRITE=1)",
+            path.display()
+        )
+    });
     assert_eq!(
         got,
         want,

@@ -21,9 +21,18 @@ fn input() -> String {
 
 fn denoise_cmd(out: &Path) -> Command {
     let mut c = Command::new(env!("CARGO_BIN_EXE_radn"));
-    c.args(["--threads", "1", "denoise", "-i", &input(), "-o"])
-        .arg(out.join("frame_####.exr"))
-        .args(["--frames", FRAMES]);
+    c.args([
+        "--threads",
+        "1",
+        "denoise",
+        "--guide",
+        "none",
+        "-i",
+        &input(),
+        "-o",
+    ])
+    .arg(out.join("frame_####.exr"))
+    .args(["--frames", FRAMES]);
     c
 }
 

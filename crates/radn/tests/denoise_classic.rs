@@ -74,7 +74,8 @@ fn aovs_that_sum_to_the_beauty_still_do_and_alpha_is_denoised() {
         "5-5",
         "--aovs",
         "diffuse,specular",
-        "--no-refine",
+        "--tune",
+        "classic.flow-refine=off",
     ]);
     assert!(
         out.status.success(),

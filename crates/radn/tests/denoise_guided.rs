@@ -80,8 +80,8 @@ fn the_renderers_denoised_layer_guides_the_noisy_one_and_bands_equal_whole_frame
             tile,
             "--bands",
             "always",
-            "--input-blend",
-            "off",
+            "--tune",
+            "input-blend=off",
         ]);
         ExrFile::read(out.replace("####", "0002")).unwrap()
     };
@@ -114,12 +114,17 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
     if oidn_or_skip(1).is_none() {
         return;
     }
-    const UNMIXED: [&str; 4] = ["--guide-mix", "off", "--guide-mix-outliers", "off"];
+    const UNMIXED: [&str; 4] = ["--tune", "mix.weight=off", "--tune", "mix.outliers=off"];
     guided_aovs_sum_and_bands_equal_whole(
         true,
         3,
         "low",
-        &["--stabilize", "off", "--resampling", "catmull-rom"],
+        &[
+            "--tune",
+            "stabilize=off",
+            "--tune",
+            "resampling=catmull-rom",
+        ],
     );
     eprintln!("CR network ok");
     for (blend, scales) in [(false, 1), (true, 1)] {
@@ -127,14 +132,16 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
     }
     // the guide mix moves the result toward the guide, AOVs along with the beauty
     let unmixed = guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &UNMIXED);
-    let mixed = guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &["--guide-mix", "0.5"]);
+    let mixed =
+        guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &["--tune", "mix.weight=0.5"]);
     assert!(
         worst(&unmixed, &mixed) > 1e-3,
         "the guide mix changes nothing"
     );
     // the outlier ramp alone (on by default) takes the guide where the untrained network's
     // result strays from it, and keeps AOVs summing and bands equal to whole frames
-    let outliers = guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &["--guide-mix", "off"]);
+    let outliers =
+        guided_aovs_sum_and_bands_equal_whole(true, 3, "low", &["--tune", "mix.weight=off"]);
     assert!(
         worst(&unmixed, &outliers) > 1e-3,
         "the outlier ramp changes nothing"
@@ -146,7 +153,7 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
         true,
         3,
         "high",
-        &["--guide-mix-range", "off", "--guide-mix-from", "window"],
+        &["--tune", "mix.range=off", "--tune", "mix.from=window"],
     );
     assert!(
         worst(&ranged, &unranged) > 1e-4,
@@ -158,7 +165,12 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
         true,
         3,
         "low",
-        &["--guide-mix", "off", "--loosen-confidence", "off"],
+        &[
+            "--tune",
+            "mix.weight=off",
+            "--tune",
+            "confidence.loosen=off",
+        ],
     );
     assert!(
         worst(&outliers, &strict) > 1e-4,
@@ -170,7 +182,7 @@ fn guided_kernels_keep_aovs_summing_to_the_beauty() {
         true,
         3,
         "low",
-        &["--guide-mix", "off", "--stabilize", "off"],
+        &["--tune", "mix.weight=off", "--tune", "stabilize=off"],
     );
     assert!(
         worst(&outliers, &unstabilized) > 1e-4,
@@ -253,38 +265,83 @@ fn a_guide_needs_a_guided_model_and_a_guided_model_a_guide() {
         env!("CARGO_MANIFEST_DIR")
     );
     fails(&["--model", &default, "--guide", "oidn"], "reads no guide");
+    // a guided model's settings, for a model that reads no guide
     fails(
-        &["--model", &default, "--guide-mix", "0.5"],
-        "--guide-mix 0.5",
+        &["--model", &default, "--tune", "mix.weight=0.5"],
+        "--tune mix.weight",
     );
     fails(
-        &["--model", &default, "--guide-mix-range", "0.02"],
-        "--guide-mix-range 0.02",
+        &["--guide", "none", "--tune", "mix.range=0.02"],
+        "--tune mix.range",
     );
     fails(
-        &["--guide-mix-range", "0"],
-        "not auto, off or a positive number",
+        &["--guide", "none", "--tune", "confidence.guide=0.6"],
+        "reads no guide",
     );
+    fails(&["--tune", "confidence.color=0"], "positive number");
     fails(&["--method", "classic", "--guide", "oidn"], "classic");
-    // the guide term of the confidence, without guides to compare
-    fails(&["--guide-confidence", "0.6"], "give them with --guide");
     fails(
-        &["--guide-confidence=0"],
-        "not auto, off or a positive tolerance",
+        &["--method", "classic", "--tune", "mix.range=0.1"],
+        "network setting",
     );
-    fails(
-        &["--loosen-confidence", "0.5"],
-        "not auto, off or a factor of at least 1",
-    );
+    fails(&["--tune", "classic.radius=1"], "classic denoiser setting");
+    fails(&["--tune", "confidence.loosen=0.5"], "at least 1");
+    fails(&["--tune", "nonsense=1"], "no such key");
+    fails(&["--tune", "threshold"], "KEY=VALUE");
     let m = guided_model(d.path());
     let m = m.to_str().unwrap();
-    fails(&["--model", m], "reads a guide");
+    fails(&["--model", m, "--guide", "none"], "reads a guide");
     // the sample has no denoising data: no denoised layer beside its (noisy) Combined
     fails(
         &["--model", m, "--guide", "denoised"],
         "has no denoised beauty",
     );
     fails(&["--model", m, "--guide", "Nope"], "guide layer 'Nope'");
+}
+
+#[test]
+fn the_main_command_takes_the_guided_path_where_oidn_is_found_and_says_so() {
+    let d = tempfile::tempdir().unwrap();
+    let input = format!("{}/low/frame_####.exr", sample().display());
+    let run = |name: &str, library: Option<&std::path::Path>| {
+        let out = format!("{}/{name}/f_####.exr", d.path().display());
+        let mut c = Command::new(env!("CARGO_BIN_EXE_radn"));
+        c.args(["denoise", "-i", &input, "-o", &out, "--frames", "5-5"]);
+        if let Some(l) = library {
+            c.env("RADN_OIDN_LIBRARY", l);
+        }
+        let r = c.output().unwrap();
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let said = String::from_utf8_lossy(&r.stdout).into_owned();
+        (said, ExrFile::read(out.replace("####", "0005")).unwrap())
+    };
+    // no library: the unguided model, and one line saying how to get the guided path
+    let (said, unguided) = run("none", Some(&d.path().join("missing.so")));
+    let first = said.lines().next().unwrap();
+    assert!(first.contains("unguided path"), "{said}");
+    assert!(
+        first.contains("pip install pyoidn") && first.contains("bpy"),
+        "{said}"
+    );
+    if oidn_or_skip(1).is_none() {
+        return;
+    }
+    // with one: the guided model over it, named with its version and file
+    let (said, guided) = run("auto", None);
+    let first = said.lines().next().unwrap();
+    assert!(
+        first.contains("guided path") && first.contains("Intel Open Image Denoise 2."),
+        "{said}"
+    );
+    assert!(first.contains("libOpenImageDenoise"), "{said}");
+    // the same as asking for it, and not the unguided result
+    let out = format!("{}/given/f_####.exr", d.path().display());
+    radn_ok(&[
+        "denoise", "-i", &input, "-o", &out, "--frames", "5-5", "--guide", "oidn",
+    ]);
+    let given = ExrFile::read(out.replace("####", "0005")).unwrap();
+    assert_eq!(rgb(&guided, "Combined"), rgb(&given, "Combined"));
+    assert!(worst(&rgb(&guided, "Combined"), &rgb(&unguided, "Combined")) > 1e-3);
 }
 
 #[test]

@@ -34,7 +34,7 @@ fn model_reading(dir: &Path, demodulate: Option<f32>, inputs: InputConfig) -> Pa
 #[test]
 fn network_denoise_applies_one_kernel_to_beauty_aovs_and_alpha() {
     // plain kernels, kernels on albedo-demodulated colour and AOVs (alpha stays plain), and
-    // the result blended with the input by one per-pixel weight (--input-blend 2)
+    // the result blended with the input by one per-pixel weight (`--tune input-blend=2`)
     for (demodulate, blend) in [(None, false), (Some(0.25), false), (Some(0.25), true)] {
         one_kernel_for_beauty_aovs_and_alpha(demodulate, blend);
     }
@@ -65,7 +65,7 @@ fn one_kernel_for_beauty_aovs_and_alpha(demodulate: Option<f32>, input_blend: bo
         "always",
     ];
     if input_blend {
-        args.extend(["--input-blend", "2"]);
+        args.extend(["--tune", "input-blend=2"]);
     }
     let res = radn(&args);
     assert!(
@@ -131,15 +131,17 @@ fn passes_threshold_and_resume() {
         &input,
         "-o",
         &one,
-        "--threshold",
-        "0.5",
+        "--tune",
+        "threshold=0.5",
         "--overwrite",
     ]);
     assert!(!res.status.success());
     assert!(String::from_utf8_lossy(&res.stderr).contains("must be in [0, 1/K)"));
-    // without --model (and without --method) the built-in default model runs
+    // without --model (and without --method) the built-in unguided model runs
     let dflt = format!("{}/pd/f_####.exr", d.path().display());
-    radn_ok(&["denoise", "-i", &input, "-o", &dflt, "--frames", "5-5"]);
+    radn_ok(&[
+        "denoise", "-i", &input, "-o", &dflt, "--frames", "5-5", "--guide", "none",
+    ]);
     assert_ne!(a, green("pd"), "the default model is not the test's model");
 }
 
@@ -224,7 +226,7 @@ fn banded_denoising_equals_whole_frame_denoising() {
     // `--tile N` reads and denoises each frame in bands of N rows, each band from only the rows
     // of its window it reaches; `--tile 0` aligns and denoises whole frames. The network
     // normalises by the frame's exposure and reads the noise estimate: bands use the whole
-    // frame's exposure. The result is blended with the input (--input-blend 2), whose boxes
+    // frame's exposure. The result is blended with the input (`--tune input-blend=2`), whose boxes
     // read rows beyond each band (with `auto`, bands also get the whole frame's noise level:
     // radn-core's real_cycles test).
     let d = tempfile::tempdir().unwrap();
@@ -244,8 +246,8 @@ fn banded_denoising_equals_whole_frame_denoising() {
             tile,
             "--bands",
             "always",
-            "--input-blend",
-            "2",
+            "--tune",
+            "input-blend=2",
         ];
         denoise_frames_3_to_7(&m, &input, &out, &args)
     };
@@ -268,21 +270,23 @@ fn banded_denoising_equals_whole_frame_denoising() {
 #[test]
 fn the_colour_confidence_changes_clean_frames_and_bands_still_equal_whole_frames() {
     // the compiled-in default model on the 32-spp sample, a frame clean enough for the colour
-    // term (`--color-confidence auto`): it changes the result, and bands of 32 rows (whose
+    // term (the recipe's `confidence.color`): it changes the result, and bands of 32 rows (whose
     // alignment sees only their rows and gets the frame's noise level from the statistics pass)
     // equal whole frames
     let d = tempfile::tempdir().unwrap();
     let input = format!("{}/high/frame_####.exr", sample().display());
     let run = |name: &str, extra: &[&str]| {
         let out = format!("{}/{name}/f_####.exr", d.path().display());
-        let mut args = vec!["denoise", "-i", &input, "-o", &out, "--frames", "4-5"];
+        let mut args = vec![
+            "denoise", "-i", &input, "-o", &out, "--frames", "4-5", "--guide", "none",
+        ];
         args.extend(extra);
         radn_ok(&args);
         [4, 5].map(|f| beauty_rgb(&ExrFile::read(out.replace("####", &format!("{f:04}"))).unwrap()))
     };
     let whole = run("whole", &["--tile", "0"]);
     let banded = run("banded", &["--tile", "32", "--bands", "always"]);
-    let off = run("off", &["--tile", "0", "--color-confidence", "off"]);
+    let off = run("off", &["--tile", "0", "--tune", "confidence.color=off"]);
     let mut changed = 0;
     for ((w, b), o) in whole.iter().zip(&banded).zip(&off) {
         for ((u, v), x) in w.data().iter().zip(b.data()).zip(o.data()) {
@@ -298,7 +302,7 @@ fn the_colour_confidence_changes_clean_frames_and_bands_still_equal_whole_frames
 
 #[test]
 fn the_automatic_input_blend_follows_each_frames_noise_level() {
-    // the default, and `--input-blend` alone, is `auto`: the noise scale follows the frame's
+    // the default (`input-blend=auto`): the noise scale follows the frame's
     // noise level, and a frame as noisy as the 4-spp sample is left unblended while the 32-spp
     // one is blended
     let d = tempfile::tempdir().unwrap();
@@ -319,12 +323,12 @@ fn the_automatic_input_blend_follows_each_frames_noise_level() {
                 .channel_f32("ViewLayer.Combined.G")
                 .unwrap()
         };
-        let off = green("off", &["--input-blend", "off"]);
+        let off = green("off", &["--tune", "input-blend=off"]);
         let default = green("default", &[]);
-        let auto = green("auto", &["--input-blend"]);
+        let auto = green("auto", &["--tune", "input-blend=auto"]);
         let fixed = green(
             "fixed",
-            &["--input-blend", "5", "--input-blend-radius", "1"],
+            &["--tune", "input-blend=5", "--tune", "input-blend.radius=1"],
         );
         assert!(off != fixed, "{level}: a fixed blend changed nothing");
         assert!(default == auto, "{level}: the default is not auto");
@@ -356,7 +360,7 @@ fn a_frame_local_stem_model_runs_tiled_as_whole_with_aovs_summing_to_the_beauty(
     let whole = run("whole", &["--tile", "0"]);
     let tiled = run("tiled", &["--tile", "48", "--bands", "never"]);
     let banded = run("banded", &["--tile", "48", "--bands", "always"]);
-    let aligned = run("aligned", &["--tile", "0", "--stem-on-aligned-frames"]);
+    let aligned = run("aligned", &["--tile", "0", "--tune", "stem-per-window=on"]);
     let (mut worst, mut apart) = (0.0f32, 0.0f32);
     for other in [&tiled, &banded] {
         for_each_channel(&whole, other, |_, x, y| {

@@ -282,6 +282,8 @@ fn frame_case(dir: &Path, bytes: &[u8], denoise: bool) -> Result<bool, String> {
                 "--frames",
                 "3-3",
                 "--overwrite",
+                "--guide",
+                "none",
             ],
             &p,
         )?;

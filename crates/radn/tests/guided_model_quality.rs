@@ -20,7 +20,7 @@ const FRAMES: std::ops::RangeInclusive<i64> = 3..=7;
 
 /// Per input level: the least PSNR margin (dB) over OIDN, the largest tMAE as a share of
 /// OIDN's, and the least PSNR margin over the default model, for models/guided.safetensors (a
-/// file, run with `--model`; models/README.md, "Guided model") with the default guide mix
+/// file, run with `--model`; models/guided.md) with the default guide mix
 /// (0.5, `--guide-mix-from auto`, the outlier ramp on), measured on frames 3–7: OIDN 32.03 /
 /// 34.23 / 36.66 dB and tMAE 0.0195 / 0.0154 / 0.0118; guided 32.53 / 34.48 / 36.71 dB and
 /// 0.0175 / 0.0145 / 0.0117 (0.90 / 0.94 / 0.99 of OIDN's); the stage-7 default 31.42 / 33.17 /
@@ -121,7 +121,11 @@ fn the_compiled_in_guided_model_beats_oidn_and_the_default_at_every_level_on_the
                     .unwrap()
             })
             .collect();
-        let default = denoised(&d.path().join(format!("{level}-d")), level, &[]);
+        let default = denoised(
+            &d.path().join(format!("{level}-d")),
+            level,
+            &["--guide", "none"],
+        );
         let (po, to) = scores(&oidn_frames);
         let (pd, _) = scores(&default);
         for (name, args, gates) in &models {

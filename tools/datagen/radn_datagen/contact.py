@@ -1,7 +1,7 @@
 """Glass standing on a textured floor, for the `contact` scenes: the thin dark edges where a
 glass object meets the floor, and the caustics a small light throws through it onto fine
 texture. On held-aside test scene 3 000 002 radn's kernels lifted exactly those edges that
-Intel Open Image Denoise kept (docs/guided.md, "The glass scene up close"), and no validation
+Intel Open Image Denoise kept (docs/research/guided.md, "The glass scene up close"), and no validation
 scene had them: the general generator's objects mostly float above the floor.
 
 Like `fur.py`, everything is placed relative to the camera's azimuth so that it is in view, and

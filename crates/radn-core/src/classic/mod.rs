@@ -3,6 +3,7 @@
 //! pseudo-references for training (paper section 6) and is `radn denoise --method classic`.
 
 pub mod guided;
+pub mod keys;
 pub mod nlm;
 pub mod pipeline;
 pub mod refine;

@@ -23,7 +23,7 @@ pub struct ClassicParams {
     /// Alignment and confidence.
     pub align: AlignParams,
     /// Optical-flow refinement of the renderer's motion (None: renderer motion only).
-    pub refine: Option<RefineParams>,
+    pub flow_refine: Option<RefineParams>,
     /// Non-local means.
     pub nlm: NlmParams,
     /// Guided filter (None: skip).
@@ -39,7 +39,7 @@ impl Default for ClassicParams {
     fn default() -> Self {
         Self {
             align: AlignParams::default(),
-            refine: Some(RefineParams::default()),
+            flow_refine: Some(RefineParams::default()),
             nlm: NlmParams::default(),
             guided: Some(GuidedParams::default()),
             guided_blend: Some(BlendParams::default()),
@@ -299,15 +299,15 @@ impl crate::denoiser::WindowDenoiser for ClassicDenoiser {
     }
 
     fn prepares_frames(&self) -> bool {
-        self.params.refine.is_some()
+        self.params.flow_refine.is_some()
     }
 
     fn prepare_needs_neighbours(&self) -> bool {
-        self.params.refine.is_some()
+        self.params.flow_refine.is_some()
     }
 
     fn prepare(&self, frame: &mut Frame, prev: Option<&Frame>, next: Option<&Frame>) {
-        if let Some(rp) = &self.params.refine {
+        if let Some(rp) = &self.params.flow_refine {
             refine_frame_motion(frame, prev, next, rp, self.params.align.invert_iterations);
         }
     }

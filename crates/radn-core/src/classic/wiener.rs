@@ -2,7 +2,7 @@
 //! its input by no more than the input's remaining noise explains, its output is taken; where it
 //! changes it by more (it removed detail: a reflection, a shadow edge, texture the guide does not
 //! describe), the input is kept. So the classic denoiser's strength follows the noise: a 4-spp
-//! frame is smoothed, a 128-spp frame only refined (issue 18: it must never end below its input).
+//! frame is smoothed, a 128-spp frame only refined (it must never end below its input).
 //!
 //! Per pixel, with `v` the input's noise variance and `d²` the local mean squared change the
 //! smoothing made, the smoothing's bias is estimated as `b² = max(0, d² − v)` and the weight of
@@ -27,7 +27,7 @@ pub struct BlendParams {
     pub radius: usize,
     /// How many noise variances of change are still taken as noise (1 is the Wiener gain;
     /// larger trusts the smoothing more, and smooths 4-spp inputs more, but ends below the
-    /// input on some clean ones: chosen on the detail validation scenes, docs/detail.md).
+    /// input on some clean ones: chosen on the detail validation scenes, docs/research/detail.md).
     pub noise_scale: f32,
 }
 

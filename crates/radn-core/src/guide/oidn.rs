@@ -195,7 +195,11 @@ fn python_lib_dirs() -> (Option<PathBuf>, Option<PathBuf>) {
 /// Where a Blender install on `PATH` keeps its bundled libraries: `lib/` beside the executable
 /// (Linux), `../Resources/lib` (macOS), `blender.shared/` (Windows).
 fn blender_lib_dirs() -> Vec<PathBuf> {
-    let exe = if cfg!(windows) { "blender.exe" } else { "blender" };
+    let exe = if cfg!(windows) {
+        "blender.exe"
+    } else {
+        "blender"
+    };
     let Some(path) = std::env::var_os("PATH") else {
         return Vec::new();
     };

@@ -5,9 +5,6 @@
 //! moved toward their guides. They still lose some of the detail a spatial denoiser keeps in
 //! each frame. The spatial denoiser, in turn, keeps per-frame error the window averages away.
 //! The two errors are far from equal, so a mix of the two is closer to the truth than either.
-//! On the detail validation scenes, half and half lifts guided-lean by 0.13 to 0.47 dB from
-//! 4 to 128 spp, and puts it ahead of OIDN at every level up to 64 spp (docs/guided.md, "Guide
-//! mix").
 //!
 //! Like the guide blend, the mix is a per-pixel gain on every RGB group,
 //! `m = 1 − w + w·g / max(r, ε)`. On the beauty, `r·m = (1 − w)·r + w·g` wherever `r ≥ ε`.
@@ -17,12 +14,14 @@
 //! An [`OutlierRamp`] raises the weight, pixel by pixel, up to the guide alone where the result
 //! and the guide disagree far more than detail does: fireflies the kernels spread instead of
 //! removing (caustics through glass), and pixels no sample lit that they keep dark (dense fur
-//! at 4 spp). Held-aside test scenes showed both (docs/guided.md, "Outliers").
+//! at 4 spp).
 
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
 use radn_core::Plane;
+
+use crate::infer::schedule::NoiseSchedule;
 
 /// `ε` of the gain: the smallest linear colour the guide is divided by. Below it, a pixel
 /// takes the guide in proportion to its own value. That is far below anything visible after
@@ -35,21 +34,14 @@ pub const GUIDE_MIX_EPS: f32 = 1e-6;
 /// `t(x) = x / (1 + x)`. At `d ≤ from` the mix keeps its weight; from `to` on, the pixel is
 /// the guide's. In between the guide's weight rises linearly. Being a gain, it cannot lift a
 /// result of exactly zero (below [`GUIDE_MIX_EPS`]).
-#[derive(Clone, Copy, Debug, PartialEq)]
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct OutlierRamp {
     /// The difference below which a pixel keeps the mix's own weight.
     pub from: f32,
     /// The difference from which a pixel takes the guide alone.
     pub to: f32,
 }
-
-/// The ramp `--guide-mix-outliers auto` gives: chosen on the detail and fur validation scenes
-/// among five (docs/guided.md, "Outliers"). Detail a spatial denoiser loses differs from it by
-/// a few hundredths in `t`; a firefly or an unlit pixel by tenths.
-pub const DEFAULT_OUTLIER_RAMP: OutlierRamp = OutlierRamp {
-    from: 0.03,
-    to: 0.1,
-};
 
 impl OutlierRamp {
     /// The guide's weight at a pixel whose mapped luminances differ by `d` (0 to 1).
@@ -151,30 +143,28 @@ fn mapped_luma(p: &Plane) -> Vec<f32> {
 }
 
 /// Which guide the result is mixed with.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize, serde::Deserialize)]
+#[serde(rename_all = "kebab-case")]
 pub enum MixGuide {
     /// The centre frame's own guide: keeps its detail, and its per-frame error.
     Centre,
     /// The window's aligned guides averaged by their confidence ([`window_guide`]). It holds
     /// less per-frame error (flicker), and loses detail wherever the warps blur or miss.
     Window,
-    /// [`MixGuide::Window`] for frames noisy enough that the input blend leaves them alone
-    /// ([`crate::infer::input_blend::noise_scale_for_level`] gives none: 4 spp and some 11-spp
-    /// frames), where a frame's guide flickers most. [`MixGuide::Centre`] for cleaner ones,
-    /// where the warps would cost more detail than the averaging saves. Chosen on the detail
-    /// validation scenes (docs/guided.md, "The guide mix").
+    /// [`MixGuide::Window`] for frames the noise schedule finds too noisy
+    /// ([`NoiseSchedule::noise_scale`] gives none: 4 spp and some 11-spp frames), where a
+    /// frame's guide flickers most; [`MixGuide::Centre`] for cleaner ones, where the warps
+    /// would cost more detail than the averaging saves.
     FollowLevel,
 }
 
 impl MixGuide {
     /// Whether a frame of noise level `level` is mixed with the window's guide.
-    pub fn uses_window(self, level: Option<f32>) -> bool {
+    pub fn uses_window(self, level: Option<f32>, schedule: &NoiseSchedule) -> bool {
         match self {
             MixGuide::Centre => false,
             MixGuide::Window => true,
-            MixGuide::FollowLevel => {
-                crate::infer::input_blend::noise_scale_for_level(level).is_none()
-            }
+            MixGuide::FollowLevel => schedule.noise_scale(level).is_none(),
         }
     }
 }
@@ -232,6 +222,12 @@ pub fn window_guide(win: &AlignedWindow, rows: Range<usize>, range: Option<f32>)
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// The shipped recipe's ramp.
+    const TEST_RAMP: OutlierRamp = OutlierRamp {
+        from: 0.03,
+        to: 0.1,
+    };
 
     #[test]
     fn the_beauty_becomes_the_mix_and_aovs_keep_summing_to_it() {
@@ -309,10 +305,11 @@ mod tests {
                 assert!((g.channel(1)[y * w + x] - want).abs() < 1e-6);
             }
         }
-        assert!(MixGuide::Window.uses_window(Some(0.01)));
-        assert!(!MixGuide::Centre.uses_window(Some(100.0)));
-        assert!(MixGuide::FollowLevel.uses_window(Some(100.0)));
-        assert!(!MixGuide::FollowLevel.uses_window(Some(0.01)));
+        let s = NoiseSchedule::example();
+        assert!(MixGuide::Window.uses_window(Some(0.01), &s));
+        assert!(!MixGuide::Centre.uses_window(Some(100.0), &s));
+        assert!(MixGuide::FollowLevel.uses_window(Some(100.0), &s));
+        assert!(!MixGuide::FollowLevel.uses_window(Some(0.01), &s));
     }
 
     #[test]
@@ -401,7 +398,7 @@ mod tests {
             let m = t(0.4) + d;
             m / (1.0 - m)
         };
-        let ramp = DEFAULT_OUTLIER_RAMP;
+        let ramp = TEST_RAMP;
         let mid = 0.5 * (ramp.from + ramp.to);
         let r = [at(0.01), 5.0, 0.002, at(mid)];
         let mut values = Plane::from_fn(4, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.5 * r[x] });
@@ -438,7 +435,7 @@ mod tests {
             &mut values,
             &guide,
             MixWeight::Uniform(0.7),
-            Some(DEFAULT_OUTLIER_RAMP),
+            Some(TEST_RAMP),
             &[3],
         );
         for c in 0..3 {
@@ -464,7 +461,7 @@ mod tests {
         let r = [0.41f32, 0.42, 0.43, 5.0];
         let ws = [0.0f32, 0.5, 1.0, 0.0];
         let make = || Plane::from_fn(4, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.3 * r[x] });
-        for ramp in [None, Some(DEFAULT_OUTLIER_RAMP)] {
+        for ramp in [None, Some(TEST_RAMP)] {
             let mut values = make();
             mix_with_guide(&mut values, &guide, MixWeight::PerPixel(&ws), ramp, &[3]);
             for x in 0..4 {

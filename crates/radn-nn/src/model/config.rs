@@ -99,7 +99,7 @@ pub struct NetConfig {
     /// ([`crate::model::multiscale`]). `None` or 1: one full-resolution kernel per pixel.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub kernel_scales: Option<usize>,
-    /// Guide blend (issue 19, needs `inputs.guide`): a per-frame head predicts `β ∈ (0, 1)` at
+    /// Guide blend (needs `inputs.guide`): a per-frame head predicts `β ∈ (0, 1)` at
     /// every pixel of every window frame, and the kernels filter `(1 − β)·x + β·g` — the noisy
     /// frame `x` moved toward its guide `g` — instead of `x` alone, so the kernels average the
     /// guides of the aligned frames where the network trusts them (a learned temporal filter
@@ -108,7 +108,7 @@ pub struct NetConfig {
     /// ([`crate::model::guide_blend`]); alpha is not blended. Off: the guide is an input only.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub guide_blend: bool,
-    /// Learned guide mix (issue 19, needs `inputs.guide`): a head on the centre frame's
+    /// Learned guide mix (needs `inputs.guide`): a head on the centre frame's
     /// features predicts `w ∈ (0, 1)` at every pixel, and the result is `(1 − w)·r + w·g`, the
     /// kernels' result `r` mixed with the centre frame's guide `g` — in training, where the loss
     /// sees the mixed result, as at inference. It replaces the fixed weight of
@@ -123,7 +123,7 @@ pub struct NetConfig {
     /// it the head reads the backbone's features alone.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub guide_mix_reads_result: bool,
-    /// Frame-local stem (issue 20): the layers before the first RA block read only what a
+    /// Frame-local stem: the layers before the first RA block read only what a
     /// frame holds itself (colour, albedo, normal, depth, guide, each frame normalised by its
     /// own exposure and depth at inference), and the window's own inputs (alignment confidence,
     /// the noise estimate) join after them through a 1×1 convolution. Inference then computes
@@ -155,14 +155,22 @@ const PRESETS: &[(&str, &str)] = &[
     ("unet-ms", include_str!("../../presets/unet-ms.toml")),
     ("tkpcn", include_str!("../../presets/tkpcn.toml")),
     ("spatial", include_str!("../../presets/spatial.toml")),
+    ("lean-k5", include_str!("../../presets/lean-k5.toml")),
+    (
+        "guided-lean",
+        include_str!("../../presets/guided-lean.toml"),
+    ),
+    (
+        "guided-blend",
+        include_str!("../../presets/guided-blend.toml"),
+    ),
 ];
 
 /// Number of base input channels per frame: log colour (3), albedo (3), normal (3), depth (1),
 /// confidence (1). Tiles store these; [`InputConfig`] derives the network's own from them.
 pub const INPUT_CHANNELS: usize = 11;
 
-/// Input features a network may ask for beyond the base ones (issue 18, point 5; the guide,
-/// issue 19). They are computed from the window (and its guides) alone, the same way at
+/// Input features a network may ask for beyond the base ones (and the guide). They are computed from the window (and its guides) alone, the same way at
 /// training and at inference
 /// ([`crate::infer::input::network_features`]).
 #[derive(Clone, Debug, Default, Deserialize, Serialize, PartialEq, Eq)]
@@ -178,7 +186,7 @@ pub struct InputConfig {
     /// tells the network how much of what it sees is noise, at every input level.
     #[serde(default)]
     pub noise: bool,
-    /// Append a guide (issue 19): each frame's spatial estimate of the beauty (the
+    /// Append a guide: each frame's spatial estimate of the beauty (the
     /// renderer's denoised layer or Intel Open Image Denoise's result, `radn denoise
     /// --guide`), warped with the window and transformed as the colour (three channels after
     /// the others). Kernels are still applied to the noisy frames: the guide steers the

@@ -10,12 +10,14 @@ pub mod config;
 pub mod cpu;
 pub mod demod;
 pub mod guide_blend;
+mod introspect;
 pub mod kernel;
 pub mod layers;
 pub mod learned_mix;
 pub mod multiscale;
 pub mod ra_block;
 pub mod store;
+mod surgery;
 
 use burn::module::{Module, Param};
 use burn::nn::conv::Conv2d;
@@ -141,13 +143,15 @@ pub enum Network {
     Spatial(SpatialKpcn),
 }
 
-/// A network with its configuration: everything needed to denoise.
+/// A network with its configuration and recipe: everything needed to denoise.
 #[derive(Debug, Clone)]
 pub struct Denoiser {
     /// The trainable part.
     pub net: Network,
     /// Its description.
     pub config: NetConfig,
+    /// Its tuned inference settings (saved beside the configuration in its file).
+    pub recipe: crate::recipe::Recipe,
 }
 
 /// What a guided network predicts besides its kernels.
@@ -251,94 +255,12 @@ impl Denoiser {
                 Network::Spatial(SpatialKpcn { backbone, head })
             }
         };
-        Self { net, config }
-    }
-
-    /// The same network with `scales` kernel scales: the heads it lacks are added, each
-    /// coarse kernel head starting as a copy of the full-resolution head (the same features,
-    /// averaged, then give the same kernels at the coarser scale) and each blend head at
-    /// [`BLEND_INIT_BIAS`], so a fine-tune of a single-scale model starts close to it. Fewer
-    /// scales than the network has drop the coarsest heads. Only the RA network has scales.
-    pub fn with_kernel_scales(mut self, scales: usize, device: &Device) -> Result<Self, String> {
-        let Network::Ra(n) = &mut self.net else {
-            return Err("only arch = \"ra\" has multi-scale kernels".into());
-        };
-        let c = n.backbone.out_channels();
-        let k2 = self.config.kernel_size * self.config.kernel_size;
-        n.coarse_heads.truncate(scales.saturating_sub(1));
-        n.blend_heads.truncate(scales.saturating_sub(1));
-        while n.coarse_heads.len() + 1 < scales {
-            let mut h = box_head(c, k2, 0.0, 1.0, device);
-            h.weight = Param::from_tensor(n.head.weight.val());
-            h.bias = n.head.bias.as_ref().map(|b| Param::from_tensor(b.val()));
-            n.coarse_heads.push(h);
-            n.blend_heads.push(blend_head(c, device));
+        let recipe = crate::recipe::Recipe::tuned_for(&config);
+        Self {
+            net,
+            config,
+            recipe,
         }
-        self.config.kernel_scales = (scales > 1).then_some(scales);
-        Ok(self)
-    }
-
-    /// The same network with a frame-local stem ([`NetConfig::frame_local_stem`]): the input
-    /// layer's weights of the window's own channels leave it (their value where a frame is fully
-    /// trusted — confidence 1, noise estimate 0 — folded into its bias) and come back after the
-    /// stem through a 1×1 convolution that starts at zero. A fine-tune from a model without the
-    /// split starts close to it. Only an RA network with a ResNet backbone has the split.
-    pub fn with_frame_local_stem(mut self, device: &Device) -> Result<Self, String> {
-        if self.config.frame_local_stem {
-            return Ok(self);
-        }
-        let mut config = self.config.clone();
-        config.frame_local_stem = true;
-        config.validate().map_err(|e| e.to_string())?;
-        let Network::Ra(n) = &mut self.net else {
-            return Err("only arch = \"ra\" has a frame-local stem".into());
-        };
-        split_stem(&mut n.backbone, &self.config.inputs, device);
-        self.config = config;
-        Ok(self)
-    }
-
-    /// The same network with the guide blend on or off (`blend`): a new blend head starts at
-    /// [`GUIDE_BLEND_INIT_BIAS`], so a fine-tune that adds it starts close to the model it
-    /// grows. Only the RA network blends, and only with a guide in its inputs.
-    pub fn with_guide_blend(mut self, blend: bool, device: &Device) -> Result<Self, String> {
-        let Network::Ra(n) = &mut self.net else {
-            return Err("only arch = \"ra\" has the guide blend".into());
-        };
-        if blend && !self.config.inputs.guide {
-            return Err("the guide blend needs [inputs] guide = true".into());
-        }
-        if !blend {
-            n.guide_heads.clear();
-        } else if n.guide_heads.is_empty() {
-            let c = n.backbone.out_channels();
-            n.guide_heads
-                .push(blend_head_with(c, GUIDE_BLEND_INIT_BIAS, device));
-        }
-        self.config.guide_blend = blend;
-        Ok(self)
-    }
-
-    /// The same network with the learned guide mix on or off (`mix`): a new mix head starts at
-    /// [`GUIDE_MIX_INIT_BIAS`], the fixed mix's weight, so a fine-tune that adds it starts from
-    /// what the model it grows gave with the fixed mix. Only the RA network mixes, and only with
-    /// a guide in its inputs.
-    pub fn with_guide_mix_head(mut self, mix: bool, device: &Device) -> Result<Self, String> {
-        let Network::Ra(n) = &mut self.net else {
-            return Err("only arch = \"ra\" has the learned guide mix".into());
-        };
-        if mix && !self.config.inputs.guide {
-            return Err("the learned guide mix needs [inputs] guide = true".into());
-        }
-        self.config.guide_mix_head = mix;
-        let cin = mix_head_inputs(&self.config, n.backbone.out_channels());
-        let fits = |h: &Conv2d| h.weight.dims()[1] == cin;
-        if !mix {
-            n.mix_heads.clear();
-        } else if !n.mix_heads.first().is_some_and(fits) {
-            n.mix_heads = vec![blend_head_with(cin, GUIDE_MIX_INIT_BIAS, device)];
-        }
-        Ok(self)
     }
 
     /// The learned guide mix's weight `[B, 1, H, W]` for a head that reads the kernels' result
@@ -380,210 +302,6 @@ impl Denoiser {
             .reshape([b, 3, h, w])
     }
 
-    /// Replaces the learned guide mix's head (tests: a head far from its start, whose weights
-    /// vary across the frame).
-    #[cfg(test)]
-    pub(crate) fn set_guide_mix_head(&mut self, head: Conv2d) {
-        let Network::Ra(n) = &mut self.net else {
-            panic!("only the RA network has the learned guide mix");
-        };
-        n.mix_heads = vec![head];
-    }
-
-    /// The same network reading the input features `inputs`: the first layer gains (or drops)
-    /// the channels that differ, new ones with zero weights, so the grown network first
-    /// computes what the old one did on the features both share. A fine-tune that adds the
-    /// noise estimate starts from the model it grows.
-    pub fn with_inputs(mut self, inputs: InputConfig, device: &Device) -> Self {
-        let cin = inputs.channels();
-        match &mut self.net {
-            Network::Ra(n) => n.backbone.widen_input(cin, device),
-            Network::Tkpcn(n) => n.backbone.widen_input(cin, device),
-            Network::Spatial(n) => n.backbone.widen_input(cin, device),
-        }
-        self.config.inputs = inputs;
-        self
-    }
-
-    /// Draws every parameter's initial value now. burn initialises parameters lazily, on first
-    /// use, so without this the random draws would happen in whatever order the parameters are
-    /// first touched, interleaved with other random work.
-    pub fn materialize(&self) {
-        use burn::store::ModuleSnapshot;
-        let mut store = burn::store::SafetensorsStore::from_bytes(None);
-        self.net
-            .save_into(&mut store)
-            .expect("collecting parameters into memory cannot fail");
-    }
-
-    /// Channels per frame of the features the heads read (the backbone's output).
-    pub fn feature_channels(&self) -> usize {
-        match &self.net {
-            Network::Ra(n) => n.backbone.out_channels(),
-            Network::Tkpcn(n) => n.backbone.out_channels(),
-            Network::Spatial(n) => n.backbone.out_channels(),
-        }
-    }
-
-    /// The RA blocks of the network (none for the baselines).
-    pub fn ra_blocks(&self) -> Vec<&crate::model::ra_block::RobustAverage> {
-        match &self.net {
-            Network::Ra(n) => n.backbone.ra_blocks(),
-            _ => Vec::new(),
-        }
-    }
-
-    /// Every convolution weight of the network by layer name, in forward order (backbone
-    /// layers prefixed `backbone.`, then the heads): what training reports layer by layer.
-    pub fn layer_weights(&self) -> Vec<(String, Tensor<4>)> {
-        let backbone = |b: &FrameNet| {
-            b.weights()
-                .into_iter()
-                .map(|(n, w)| (format!("backbone.{n}"), w))
-                .collect::<Vec<_>>()
-        };
-        match &self.net {
-            Network::Ra(n) => {
-                let mut v = backbone(&n.backbone);
-                v.push(("head".into(), n.head.weight.val()));
-                for (s, h) in n.coarse_heads.iter().enumerate() {
-                    v.push((format!("head.scale{}", s + 1), h.weight.val()));
-                }
-                for (s, h) in n.blend_heads.iter().enumerate() {
-                    v.push((format!("blend.scale{s}"), h.weight.val()));
-                }
-                for h in &n.guide_heads {
-                    v.push(("guide_blend".into(), h.weight.val()));
-                }
-                for h in &n.mix_heads {
-                    v.push(("guide_mix".into(), h.weight.val()));
-                }
-                v
-            }
-            Network::Spatial(n) => {
-                let mut v = backbone(&n.backbone);
-                v.push(("head".into(), n.head.weight.val()));
-                v
-            }
-            Network::Tkpcn(n) => {
-                let mut v = backbone(&n.backbone);
-                v.push(("spatial_head".into(), n.spatial_head.weight.val()));
-                v.push(("temporal_a".into(), n.temporal_a.weight.val()));
-                v.push(("temporal_b".into(), n.temporal_b.weight.val()));
-                v.push(("temporal_head".into(), n.temporal_head.weight.val()));
-                v
-            }
-        }
-    }
-
-    /// Trainable parameters.
-    pub fn num_params(&self) -> usize {
-        self.net.num_params()
-    }
-
-    /// How far (in pixels) an output pixel's value can depend on the input: the halo a tile
-    /// needs so that tiled and whole-frame results agree. Each 3×3 convolution adds 1, each RA
-    /// block adds 2 per recurrent step, kernel application adds k/2 (twice for tKPCN). `None`
-    /// for a UNet, whose pooling grid makes tiles depend on their position.
-    pub fn receptive_radius(&self) -> Option<usize> {
-        self.reach_beyond(0)
-    }
-
-    /// [`Denoiser::receptive_radius`] once the stem's features are given
-    /// ([`Denoiser::predict_with_stem`], computed on whole frames): the stem's own reach is then
-    /// not needed around a tile.
-    pub fn receptive_radius_after_stem(&self) -> Option<usize> {
-        self.reach_beyond(self.stem_radius())
-    }
-
-    /// The receptive radius less `given` pixels of the backbone's reach that are already
-    /// computed.
-    fn reach_beyond(&self, given: usize) -> Option<usize> {
-        let k = self.config.kernel_size / 2;
-        if self.config.scales() > 1 {
-            // a coarse kernel at scale s reaches k coarse pixels, its head one more, the box
-            // averages one more: (k + 3)·2^s pixels beyond the backbone's reach. Tiles must then
-            // start on the coarsest scale's grid ([`Denoiser::tile_grid`]), so the halo is a
-            // multiple of it.
-            let crate::model::config::Backbone::Resnet {
-                blocks, ra_after, ..
-            } = &self.config.backbone
-            else {
-                return None; // a UNet's own pooling grid
-            };
-            let m = self.tile_grid();
-            let backbone = 1 + 2 * blocks + ra_after.len() * 2 * self.config.frames - given;
-            return Some((backbone + 1 + k + m * (k + 3)).div_ceil(m) * m);
-        }
-        match &self.config.backbone {
-            crate::model::config::Backbone::Resnet {
-                blocks, ra_after, ..
-            } => {
-                let ra = if self.config.arch == Arch::Ra {
-                    ra_after.len() * 2 * self.config.frames
-                } else {
-                    0
-                };
-                let backbone = 1 + 2 * blocks + ra - given;
-                Some(match self.config.arch {
-                    Arch::Ra | Arch::Spatial => backbone + 1 + k,
-                    Arch::Tkpcn => backbone + 3 + k + k,
-                })
-            }
-            crate::model::config::Backbone::Unet { .. } => None,
-        }
-    }
-
-    /// Forward FLOPs of predicting kernels for one `h × w` window and applying them to
-    /// `channels` channels (multiply-adds count 2), counted from the network's own layers, so
-    /// the count follows whatever the network is.
-    pub fn forward_flops(&self, h: usize, w: usize, channels: usize) -> f64 {
-        let px = h * w;
-        let t = self.config.frames;
-        let k2 = self.config.kernel_size * self.config.kernel_size;
-        // a k×k×frames kernel applied to every channel of every pixel
-        let apply = |frames: usize| 2.0 * (frames * k2 * channels * px) as f64;
-        match &self.net {
-            Network::Ra(n) => {
-                let scale_px = |s: usize| (h >> s) * (w >> s);
-                let coarse: f64 = (1..self.config.scales())
-                    .map(|s| {
-                        let p = scale_px(s);
-                        t as f64 * conv_flops(&n.coarse_heads[s - 1], p)
-                            + conv_flops(&n.blend_heads[s - 1], scale_px(s - 1))
-                            + 2.0 * (t * k2 * channels * p) as f64
-                    })
-                    .sum();
-                n.backbone.flops(h, w, t) + t as f64 * conv_flops(&n.head, px) + apply(t) + coarse
-            }
-            Network::Spatial(n) => n.backbone.flops(h, w, 1) + conv_flops(&n.head, px) + apply(1),
-            Network::Tkpcn(n) => {
-                n.backbone.flops(h, w, t)
-                    + t as f64 * conv_flops(&n.spatial_head, px)
-                    + conv_flops(&n.temporal_a, px)
-                    + conv_flops(&n.temporal_b, px)
-                    + conv_flops(&n.temporal_head, px)
-                    + t as f64 * apply(1)
-                    + apply(t)
-            }
-        }
-    }
-
-    /// The grid tiles must start on and their sizes be multiples of, so that a tiled result
-    /// equals the whole frame's: 2^(scales − 1) (1 for single-scale kernels).
-    pub fn tile_grid(&self) -> usize {
-        1 << (self.config.scales() - 1)
-    }
-
-    /// The multiple that tile sizes must have.
-    pub fn size_multiple(&self) -> usize {
-        match &self.net {
-            Network::Ra(n) => n.backbone.size_multiple(),
-            Network::Tkpcn(n) => n.backbone.size_multiple(),
-            Network::Spatial(n) => n.backbone.size_multiple(),
-        }
-    }
-
     /// The stem of a frame-local network ([`NetConfig::frame_local_stem`]) for frames `[n, C,
     /// H, W]` (`C` = [`NetConfig::input_channels`]; the window's own channels are not read):
     /// `[n, width, H, W]`, what [`Denoiser::predict_with_stem`] takes instead of computing it.
@@ -595,22 +313,6 @@ impl Denoiser {
         timed(Stage::Backbone, || {
             resnet.stem(frame_channels(frames, &self.config.inputs))
         })
-    }
-
-    /// Channels of a frame-local network's stem features (0 for any other network).
-    pub fn stem_channels(&self) -> usize {
-        match (&self.net, self.config.frame_local_stem) {
-            (Network::Ra(n), true) => n.backbone.resnet().map_or(0, |r| r.width()),
-            _ => 0,
-        }
-    }
-
-    /// The radius in pixels of what one of a frame-local network's stem features reads.
-    pub fn stem_radius(&self) -> usize {
-        match &self.net {
-            Network::Ra(n) => n.backbone.resnet().map_or(0, |r| r.stem_radius()),
-            _ => 0,
-        }
     }
 
     /// Predicts kernels for windows `[B, T, C, H, W]` (`C` = [`NetConfig::input_channels`],
@@ -824,6 +526,16 @@ impl Denoiser {
     }
 }
 
+/// The frame-local channels ([`InputConfig::frame_channels`]) of frames `[n, C, H, W]`.
+fn frame_channels(x: Tensor<4>, inputs: &InputConfig) -> Tensor<4> {
+    let parts: Vec<Tensor<4>> = inputs
+        .frame_channels()
+        .into_iter()
+        .map(|r| x.clone().narrow(1, r.start, r.len()))
+        .collect();
+    Tensor::cat(parts, 1)
+}
+
 /// Splits a ResNet's stem into its frame-local part and the window's own inputs
 /// ([`crate::model::backbone::ResNet::split_window_inputs`]), their at-rest values being a
 /// trusted frame's: confidence 1, noise estimate 0.
@@ -840,16 +552,6 @@ fn split_stem(backbone: &mut FrameNet, inputs: &InputConfig, device: &Device) {
         &at_rest,
         device,
     );
-}
-
-/// The frame-local channels ([`InputConfig::frame_channels`]) of frames `[n, C, H, W]`.
-fn frame_channels(x: Tensor<4>, inputs: &InputConfig) -> Tensor<4> {
-    let parts: Vec<Tensor<4>> = inputs
-        .frame_channels()
-        .into_iter()
-        .map(|r| x.clone().narrow(1, r.start, r.len()))
-        .collect();
-    Tensor::cat(parts, 1)
 }
 
 impl Prediction {
@@ -901,226 +603,4 @@ impl Prediction {
 }
 
 #[cfg(test)]
-mod tests {
-    use super::*;
-    use crate::model::config::INPUT_CHANNELS;
-    use burn::tensor::TensorData;
-
-    #[test]
-    fn flop_counts_come_from_the_layers_the_network_has() {
-        let device = Device::flex();
-        let small = NetConfig::preset("small").unwrap();
-        let d = Denoiser::new(small.clone(), &device);
-        let f = d.forward_flops(32, 32, 3);
-        // the ResNet by hand: input conv, 2 convs per block, RA predictors, head, application
-        let crate::model::config::Backbone::Resnet {
-            blocks,
-            width,
-            ra_after,
-            skips_from,
-        } = &small.backbone
-        else {
-            panic!("small is a ResNet")
-        };
-        let px = 32.0 * 32.0;
-        let conv = |cin: usize, cout: usize| 2.0 * (cin * cout * 9) as f64 * px;
-        let (t, k2) = (
-            small.frames as f64,
-            (small.kernel_size * small.kernel_size) as f64,
-        );
-        let hidden = (width / 2).max(8);
-        let by_hand = t
-            * (conv(INPUT_CHANNELS, *width)
-                + *blocks as f64 * 2.0 * conv(*width, *width)
-                + ra_after.len() as f64 * (2.0 * conv(*width, hidden) + conv(hidden, 1))
-                + conv(width * (1 + skips_from.len()), k2 as usize))
-            + 2.0 * t * k2 * 3.0 * px;
-        assert!((f - by_hand).abs() < 1e-6 * by_hand, "{f} vs {by_hand}");
-        // it follows the network: area scales it, one more block adds its two convolutions
-        assert!((d.forward_flops(64, 32, 3) - 2.0 * f).abs() < 1e-6 * f);
-        let mut deeper = small.clone();
-        if let crate::model::config::Backbone::Resnet { blocks, .. } = &mut deeper.backbone {
-            *blocks += 1;
-        }
-        let g = Denoiser::new(deeper, &device).forward_flops(32, 32, 3);
-        assert!((g - f - t * 2.0 * conv(*width, *width)).abs() < 1e-6 * f);
-        // a UNet's coarse scales cost a quarter per level
-        let unet = Denoiser::new(NetConfig::preset("unet").unwrap(), &device);
-        let (a, b) = (unet.forward_flops(32, 32, 3), unet.forward_flops(64, 64, 3));
-        assert!((b / a - 4.0).abs() < 0.05, "{a} {b}");
-    }
-
-    fn window(b: usize, t: usize, h: usize, w: usize, device: &Device) -> Tensor<5> {
-        let n = b * t * INPUT_CHANNELS * h * w;
-        Tensor::from_data(
-            TensorData::new(
-                (0..n)
-                    .map(|i| ((i * 2654435761usize) % 1000) as f32 / 1000.0)
-                    .collect::<Vec<f32>>(),
-                [b, t, INPUT_CHANNELS, h, w],
-            ),
-            device,
-        )
-    }
-
-    #[test]
-    fn shapes_for_five_and_three_frames_and_every_family() {
-        let device = Device::flex();
-        for name in ["small", "unet", "unet-ms", "tkpcn", "spatial"] {
-            for frames in [5usize, 3] {
-                let mut cfg = NetConfig::preset(name).unwrap();
-                cfg.frames = frames;
-                let d = Denoiser::new(cfg.clone(), &device);
-                let (h, w) = (16, 20);
-                let p = d.predict(window(2, frames, h, w, &device), cfg.default_threshold());
-                let values = Tensor::<5>::from_data(
-                    TensorData::new(vec![1.0f32; 2 * frames * 3 * h * w], [2, frames, 3, h, w]),
-                    &device,
-                );
-                let out = p.apply(values);
-                assert_eq!(out.dims(), [2, 3, h, w], "{name} T={frames}");
-                let mass = p.frame_mass(frames);
-                assert_eq!(mass.dims(), [2, frames, h, w]);
-                // the box-initialised kernels sum to 1 per pixel: a constant image stays constant
-                // (away from the zero-padded border)
-                let v = out.to_data().try_to_vec::<f32>().unwrap();
-                let centre = v[(h / 2) * w + w / 2];
-                assert!((centre - 1.0).abs() < 1e-4, "{name} T={frames}: {centre}");
-            }
-        }
-    }
-
-    #[test]
-    fn a_multi_scale_network_with_no_blend_weight_is_exactly_its_single_scale_network() {
-        let device = Device::flex();
-        let single = Denoiser::new(NetConfig::preset("small").unwrap(), &device);
-        let multi = single.clone().with_kernel_scales(3, &device).unwrap();
-        assert_eq!(multi.config.scales(), 3);
-        let (h, w) = (16, 20);
-        let x = window(1, 5, h, w, &device);
-        let t = single.config.default_threshold();
-        let values = Tensor::<5>::from_data(
-            TensorData::new(
-                (0..5 * 3 * h * w)
-                    .map(|i| ((i * 7919) % 113) as f32 / 50.0)
-                    .collect::<Vec<f32>>(),
-                [1, 5, 3, h, w],
-            ),
-            &device,
-        );
-        let want = single.predict(x.clone(), t).apply(values.clone());
-        let Prediction::MultiScale(mut m) = multi.predict(x, t) else {
-            panic!("three scales predict multi-scale kernels")
-        };
-        assert_eq!(m.scales.len(), 3);
-        assert_eq!(m.scales[2].weights.dims(), [1, 5 * 25, h / 4, w / 4]);
-        let blended = m.apply(values.clone());
-        m.blend = m.blend.iter().map(|a| a.clone().zeros_like()).collect();
-        let got = m.apply(values);
-        assert_eq!(
-            got.to_data().try_to_vec::<f32>().unwrap(),
-            want.to_data().try_to_vec::<f32>().unwrap()
-        );
-        // the grown network's blend starts small but not at zero: the coarse scales take part
-        let diff: f32 = (blended - got).abs().max().into_scalar();
-        assert!(diff > 0.0, "{diff}");
-    }
-
-    #[test]
-    fn a_network_grown_to_read_the_noise_estimate_first_computes_what_it_did() {
-        let device = Device::flex();
-        let (h, w) = (8, 12);
-        for preset in ["small", "unet"] {
-            let old = Denoiser::new(NetConfig::preset(preset).unwrap(), &device);
-            let inputs = InputConfig {
-                exposure: false,
-                noise: true,
-                guide: false,
-            };
-            let grown = old.clone().with_inputs(inputs, &device);
-            assert_eq!(grown.config.input_channels(), INPUT_CHANNELS + 1);
-            let x = window(1, 5, h, w, &device);
-            // any noise channel: its weights start at zero
-            let noise = Tensor::<5>::ones([1, 5, 1, h, w], &device) * 0.3;
-            let x_grown = Tensor::cat(vec![x.clone(), noise], 2);
-            let values = Tensor::<5>::ones([1, 5, 3, h, w], &device) + x.clone().narrow(2, 0, 3);
-            let t = old.config.default_threshold();
-            let want = old.predict(x, t).apply(values.clone());
-            let got = grown.predict(x_grown, t).apply(values);
-            assert_eq!(
-                got.to_data().try_to_vec::<f32>().unwrap(),
-                want.to_data().try_to_vec::<f32>().unwrap(),
-                "{preset}"
-            );
-            // and back: dropping the channel gives the old network
-            let back = grown.with_inputs(InputConfig::default(), &device);
-            assert_eq!(back.config, old.config);
-        }
-        // a fine-tune grows a network on the training (autodiff) device
-        let train = Device::flex().autodiff();
-        let grown = Denoiser::new(NetConfig::preset("small").unwrap(), &train).with_inputs(
-            InputConfig {
-                exposure: true,
-                noise: true,
-                guide: false,
-            },
-            &train,
-        );
-        grown.materialize();
-    }
-
-    #[test]
-    fn a_unet_places_ra_blocks_at_the_scales_it_names() {
-        let device = Device::flex();
-        let all = NetConfig::preset("unet").unwrap();
-        let mut coarse = all.clone();
-        coarse.backbone = crate::model::config::Backbone::Unet {
-            widths: vec![32, 48, 64],
-            ra_scales: Some(vec![1, 2]),
-        };
-        coarse.validate().unwrap();
-        let (a, c) = (
-            Denoiser::new(all, &device),
-            Denoiser::new(coarse.clone(), &device),
-        );
-        assert_eq!(a.ra_blocks().len(), 3);
-        assert_eq!(c.ra_blocks().len(), 2);
-        // the full-resolution RA block is the one left out: its cost is gone
-        let full_ra = a.ra_blocks()[0].flops(64 * 64);
-        let saved = a.forward_flops(64, 64, 3) - c.forward_flops(64, 64, 3);
-        assert!(
-            (saved - full_ra).abs() < 1e-6 * full_ra,
-            "{saved} vs {full_ra}"
-        );
-        let names: Vec<String> = c.layer_weights().into_iter().map(|(n, _)| n).collect();
-        assert!(
-            names.iter().any(|n| n.starts_with("backbone.ra1")),
-            "{names:?}"
-        );
-        assert!(
-            !names.iter().any(|n| n.starts_with("backbone.ra0")),
-            "{names:?}"
-        );
-        let out = c
-            .predict(window(1, 5, 8, 8, &device), 0.004)
-            .apply(Tensor::ones([1, 5, 3, 8, 8], &device));
-        assert_eq!(out.dims(), [1, 3, 8, 8]);
-        // scales must exist and increase
-        for bad in [vec![3], vec![2, 1]] {
-            coarse.backbone = crate::model::config::Backbone::Unet {
-                widths: vec![32, 48, 64],
-                ra_scales: Some(bad),
-            };
-            assert!(coarse.validate().is_err());
-        }
-    }
-
-    #[test]
-    fn paper_preset_parameter_count() {
-        let d = Denoiser::new(NetConfig::preset("paper").unwrap(), &Device::flex());
-        // 24 residual blocks of two 80→80 3×3 convs, 6 RA blocks, input conv, head over
-        // 80·(1 + 4 skips) channels: see docs/benchmarks.md for the breakdown
-        let n = d.num_params();
-        assert!(n > 3_000_000 && n < 4_000_000, "{n}");
-    }
-}
+mod tests;

@@ -1,5 +1,6 @@
-//! Model files: burn's SafeTensors store with the network configuration embedded as metadata,
-//! so a model file alone is enough to rebuild and run the network.
+//! Model files: burn's SafeTensors store with the network configuration and its recipe
+//! embedded as metadata, so a model file alone is enough to rebuild and run the network as
+//! tuned. A file saved before recipes existed gets the one its kind was tuned with.
 
 use std::io::Read;
 use std::path::Path;
@@ -10,8 +11,10 @@ use burn::tensor::Device;
 use crate::error::{NnError, Result};
 use crate::model::config::NetConfig;
 use crate::model::Denoiser;
+use crate::recipe::Recipe;
 
 const CONFIG_KEY: &str = "radn.config";
+const RECIPE_KEY: &str = "radn.recipe";
 const FORMAT_KEY: &str = "radn.format";
 const FORMAT: &str = "1";
 
@@ -24,6 +27,7 @@ pub fn save(denoiser: &Denoiser, path: &Path) -> Result<()> {
     radn_core::output::write_atomically_with(path, |_, tmp| {
         let mut store = SafetensorsStore::from_file(tmp)
             .metadata(CONFIG_KEY, denoiser.config.to_toml())
+            .metadata(RECIPE_KEY, denoiser.recipe.to_toml())
             .metadata(FORMAT_KEY, FORMAT)
             .overwrite(true);
         denoiser
@@ -35,6 +39,12 @@ pub fn save(denoiser: &Denoiser, path: &Path) -> Result<()> {
 
 /// The configuration stored in a model file.
 pub fn read_config(path: &Path) -> Result<NetConfig> {
+    read_header(path).map(|(config, _)| config)
+}
+
+/// The configuration and the recipe stored in a model file (the recipe its kind was tuned
+/// with where the file has none).
+pub fn read_header(path: &Path) -> Result<(NetConfig, Recipe)> {
     let err = |detail: String| NnError::Load {
         path: path.to_path_buf(),
         detail,
@@ -47,7 +57,7 @@ pub fn read_config(path: &Path) -> Result<NetConfig> {
     let mut header = vec![0u8; n];
     f.read_exact(&mut header)
         .map_err(|_| err("the file is truncated".into()))?;
-    config_from_header(&header).map_err(err)
+    model_header(&header).map_err(err)
 }
 
 /// The SafeTensors header length from the file's first 8 bytes, refused when implausible.
@@ -64,8 +74,8 @@ fn header_len(first: &[u8]) -> std::result::Result<usize, String> {
     Ok(len as usize)
 }
 
-/// The radn configuration in a SafeTensors JSON header.
-fn config_from_header(header: &[u8]) -> std::result::Result<NetConfig, String> {
+/// The radn configuration and recipe in a SafeTensors JSON header.
+fn model_header(header: &[u8]) -> std::result::Result<(NetConfig, Recipe), String> {
     let json: serde_json::Value = serde_json::from_slice(header)
         .map_err(|_| "not a model file (bad SafeTensors header)".to_string())?;
     let meta = &json["__metadata__"];
@@ -75,13 +85,24 @@ fn config_from_header(header: &[u8]) -> std::result::Result<NetConfig, String> {
     let text = meta[CONFIG_KEY]
         .as_str()
         .ok_or("the model has no embedded configuration")?;
-    NetConfig::parse(text).map_err(|e| e.to_string())
+    let config = NetConfig::parse(text).map_err(|e| e.to_string())?;
+    let recipe = match meta[RECIPE_KEY].as_str() {
+        Some(text) => Recipe::from_toml(text).map_err(|e| format!("its recipe: {e}"))?,
+        None => Recipe::tuned_for(&config),
+    };
+    Ok((config, recipe))
 }
 
 /// Loads a model file onto `device`.
 pub fn load(path: &Path, device: &Device) -> Result<Denoiser> {
-    let config = read_config(path)?;
-    load_into(config, SafetensorsStore::from_file(path), path, device)
+    let (config, recipe) = read_header(path)?;
+    load_into(
+        config,
+        recipe,
+        SafetensorsStore::from_file(path),
+        path,
+        device,
+    )
 }
 
 /// Loads a model held in memory (e.g. one compiled into the binary); `name` labels errors.
@@ -94,9 +115,10 @@ pub fn load_bytes(bytes: &[u8], name: &Path, device: &Device) -> Result<Denoiser
     let header = bytes
         .get(8..8 + n)
         .ok_or_else(|| err("the model is truncated".into()))?;
-    let config = config_from_header(header).map_err(err)?;
+    let (config, recipe) = model_header(header).map_err(err)?;
     load_into(
         config,
+        recipe,
         SafetensorsStore::from_bytes(Some(bytes.to_vec())),
         name,
         device,
@@ -105,11 +127,13 @@ pub fn load_bytes(bytes: &[u8], name: &Path, device: &Device) -> Result<Denoiser
 
 fn load_into(
     config: NetConfig,
+    recipe: Recipe,
     mut store: SafetensorsStore,
     path: &Path,
     device: &Device,
 ) -> Result<Denoiser> {
     let mut d = Denoiser::new(config, device);
+    d.recipe = recipe;
     let result = d.net.load_from(&mut store).map_err(|e| NnError::Load {
         path: path.to_path_buf(),
         detail: format!("{e:?}"),
@@ -165,5 +189,29 @@ mod tests {
         // not a model
         std::fs::write(dir.path().join("x"), b"hello").unwrap();
         assert!(load(&dir.path().join("x"), &device).is_err());
+    }
+
+    #[test]
+    fn a_recipe_is_saved_and_a_file_without_one_gets_its_kinds() {
+        let device = Device::flex();
+        let dir = tempfile::tempdir().unwrap();
+        let p = dir.path().join("m.safetensors");
+        let mut d = Denoiser::new(NetConfig::preset("small").unwrap(), &device);
+        let tuned = d.recipe.clone();
+        d.recipe.set("mix.range", "0.05").unwrap();
+        d.recipe.set("stabilize", "0.4").unwrap();
+        save(&d, &p).unwrap();
+        let (_, recipe) = read_header(&p).unwrap();
+        assert_eq!(recipe, d.recipe);
+        assert_eq!(load(&p, &device).unwrap().recipe, d.recipe);
+        // the shipped files carry none: each gets the recipe of its kind
+        let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+        let (config, recipe) = read_header(&shipped.join("guided-lean.safetensors")).unwrap();
+        assert!(config.inputs.guide);
+        assert_eq!(recipe, Recipe::tuned_for(&config));
+        assert!(recipe.stabilize.is_some() && recipe.confidence.guide.is_some());
+        let (_, recipe) = read_header(&shipped.join("default.safetensors")).unwrap();
+        assert_eq!(recipe, tuned);
+        assert!(recipe.stabilize.is_none() && recipe.confidence.color.is_some());
     }
 }

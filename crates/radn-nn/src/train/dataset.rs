@@ -28,6 +28,7 @@ use serde::{Deserialize, Serialize};
 use crate::error::{NnError, Result};
 use crate::infer::align_params_loosened;
 use crate::infer::input::{color_values, features, FeatureScales};
+use crate::infer::schedule::NoiseSchedule;
 use crate::model::config::INPUT_CHANNELS;
 
 /// Levels a network input can come from, least noisy first.
@@ -68,18 +69,21 @@ pub struct PrepareOptions {
     /// Threads of Intel Open Image Denoise, for `guide` `oidn` (0: every core).
     pub oidn_threads: usize,
     /// Alignment's guide term ([`radn_core::confidence::ConfidenceParams::guide`]) for the
-    /// stored windows, so a guided network can train on windows aligned as `radn denoise
-    /// --guide-confidence` aligns them; `None`: the geometric terms alone.
+    /// stored windows, so a guided network can train on windows aligned as a guided
+    /// model's recipe aligns them; `None`: the geometric terms alone.
     pub guide_confidence: Option<f32>,
     /// How alignment samples the side frames between pixels; a network trains on tiles
     /// prepared the way its description says inference aligns
     /// ([`crate::model::config::NetConfig::resampling`]).
     pub resampling: Resampling,
     /// The most alignment's sampled-buffer terms (albedo, normal, depth) are loosened by each
-    /// window's centre noise level, as `radn denoise --loosen-confidence` aligns
+    /// window's centre noise level, as a guided model's recipe aligns
     /// ([`crate::infer::align_params_loosened`]), so a network trains on the windows it will
     /// see; `None`: the strict tolerances at every level (every shipped model's tiles).
     pub loosen_sampled_terms: Option<f32>,
+    /// The noise schedule that loosening follows (the recipe's, so training and inference
+    /// loosen alike).
+    pub schedule: NoiseSchedule,
 }
 
 impl PrepareOptions {
@@ -98,6 +102,7 @@ impl PrepareOptions {
             guide_confidence: None,
             resampling: Resampling::Bilinear,
             loosen_sampled_terms: None,
+            schedule: crate::recipe::Recipe::for_kind(false).schedule,
         }
     }
 }
@@ -279,8 +284,12 @@ pub fn prepare(
                     let c = frames[opts.frames / 2].expect("a window's centre frame exists");
                     let scales =
                         FeatureScales::of_centre(&c.color, c.albedo.as_ref(), c.depth.as_ref());
-                    let params =
-                        align_params_loosened(align, opts.loosen_sampled_terms, scales.noise_level);
+                    let params = align_params_loosened(
+                        align,
+                        opts.loosen_sampled_terms,
+                        scales.noise_level,
+                        &opts.schedule,
+                    );
                     (align_window(&frames, &params), scales)
                 };
                 feats.push(features(&win));

@@ -10,191 +10,22 @@ use std::path::{Path, PathBuf};
 
 use burn::optim::{AdamConfig, GradientsParams};
 use burn::store::ModuleSnapshot;
-use burn::tensor::{Device, Tensor, TensorData};
+use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
-use crate::infer::input::network_features;
-use crate::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
+use crate::model::config::NetConfig;
 use crate::model::demod::Demodulation;
-use crate::model::learned_mix::{LearnedMix, MixWeights};
 use crate::model::store;
-use crate::model::{Denoiser, GuideWeights};
-use crate::train::dataset::{SplitMix, Tile, TileDataset, INPUT_LEVELS};
+use crate::model::Denoiser;
+use crate::train::batch::{blend_values, learned_mix, make_batch};
+pub use crate::train::checkpoint::{checkpoint_files, step_model_path};
+use crate::train::checkpoint::{drop_metrics_after, drop_rows_from, remove_other_checkpoints};
+pub use crate::train::config::TrainConfig;
+use crate::train::dataset::{SplitMix, TileDataset};
 use crate::train::layer_stats::{append_csv, gradient_norms, step_stats};
-use crate::train::objective::{objective, sample_pair, LossFn, LossMode, PairRule, PixelLoss};
+use crate::train::objective::{objective, sample_pair, LossFn, PairRule, PixelLoss};
 use radn_core::output::{write_atomically_with, write_bytes_atomically};
-
-/// A training run's settings (TOML).
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-#[serde(deny_unknown_fields)]
-pub struct TrainConfig {
-    /// Network preset name, or a path to a network TOML file.
-    pub model: String,
-    /// Prepared training tiles.
-    pub train: PathBuf,
-    /// Prepared validation tiles (kept apart from training).
-    pub val: PathBuf,
-    /// Tiles per step.
-    #[serde(default = "d_batch")]
-    pub batch: usize,
-    /// Crop tiles to this size at a random position (speed); `None` uses whole tiles.
-    #[serde(default)]
-    pub crop: Option<usize>,
-    /// Optimizer steps.
-    pub steps: usize,
-    /// Peak learning rate.
-    #[serde(default = "d_lr")]
-    pub lr: f64,
-    /// Linear warm-up steps before cosine decay to 5% of the peak.
-    #[serde(default = "d_warmup")]
-    pub warmup: usize,
-    /// Per-pixel loss: smape, l1, or vgg (paper eq. 6; needs `vgg_weights`).
-    #[serde(default = "d_loss")]
-    pub loss: PixelLoss,
-    /// VGG19 ImageNet weights (SafeTensors, torchvision layout) for `loss = "vgg"`.
-    #[serde(default)]
-    pub vgg_weights: Option<PathBuf>,
-    /// Temporal (the paper's conversion) or spatial loss.
-    #[serde(default = "d_mode")]
-    pub mode: LossMode,
-    /// Weight of the full-window term added to the temporal loss (0: off; post-training).
-    #[serde(default)]
-    pub full_weight: f32,
-    /// Validate every this many steps.
-    #[serde(default = "d_every")]
-    pub validate_every: usize,
-    /// Validation tiles used (the first ones of the validation set).
-    #[serde(default = "d_val_tiles")]
-    pub val_tiles: usize,
-    /// Seed of batch order, pairs and crops.
-    #[serde(default = "d_seed")]
-    pub seed: u64,
-    /// A model file whose weights the run starts from instead of random ones: fine-tuning,
-    /// e.g. the shipped model on a studio's own renders, or a trained model with a changed
-    /// kernel setting (threshold, demodulation). Its layers must match `model`'s.
-    #[serde(default)]
-    pub init: Option<PathBuf>,
-    /// Whether the pseudo-references are drawn as targets: the classic denoiser's output
-    /// (`radn prepare`'s default) or the OIDN teacher's (`radn prepare --pseudo oidn`). They are
-    /// the cleanest targets, but a network trained on them also learns that denoiser's
-    /// mistakes (the classic one blurs thin lines and texture); `false` trains on the
-    /// independent noisier renders alone (Noise2Noise pairs), which are unbiased.
-    #[serde(default = "d_pseudo")]
-    pub pseudo_references: bool,
-    /// The input levels (`low`, `half`, `high`) whose target may be the pseudo-reference when
-    /// `pseudo_references` is on; empty (the default) means all of them. Measured on detail-val:
-    /// the OIDN teacher gains 0.4–0.5 dB at 4 spp over independent renders and loses 0.3–0.6 dB
-    /// at 32–128 spp, so a run may keep it for the noisiest input only.
-    #[serde(default, skip_serializing_if = "Vec::is_empty")]
-    pub pseudo_inputs: Vec<String>,
-    /// Whether an independent render noisier than the input may be the target (`high → half`
-    /// and the like). Noise2Noise needs independent noise in the target, not less of it; without
-    /// these pairs the least noisy input level is never an input in training.
-    #[serde(default)]
-    pub noisier_targets: bool,
-    /// Whether every validation point's weights are kept as `steps/step-N.safetensors` in the
-    /// run folder, so a model can be chosen afterwards by a measure the run does not know
-    /// (references, a studio's own shots) rather than by the run's own validation loss.
-    #[serde(default = "d_keep_steps")]
-    pub keep_steps: bool,
-    /// Log every layer's weight, gradient and update norms to `layers.csv` every this many
-    /// steps (0: never), so a run shows whether it moves every layer.
-    #[serde(default = "d_layer_stats_every")]
-    pub layer_stats_every: usize,
-    /// Adam's ε (added to the root of the second moment). Default 1e-8 (PyTorch's), not
-    /// burn's 1e-5: the Robust Average blocks' gradients are ~1e-7 per weight, below 1e-5,
-    /// where Adam's steps shrink with the gradient — with 1e-5 those blocks moved 8× less per
-    /// step than the rest of the network (measured, docs/training-signal.md).
-    #[serde(default = "d_adam_epsilon")]
-    pub adam_epsilon: f32,
-}
-
-fn d_batch() -> usize {
-    4
-}
-fn d_lr() -> f64 {
-    3e-4
-}
-fn d_warmup() -> usize {
-    50
-}
-fn d_loss() -> PixelLoss {
-    PixelLoss::Smape
-}
-fn d_mode() -> LossMode {
-    LossMode::Temporal
-}
-fn d_every() -> usize {
-    100
-}
-fn d_val_tiles() -> usize {
-    16
-}
-fn d_seed() -> u64 {
-    1
-}
-fn d_pseudo() -> bool {
-    true
-}
-fn d_adam_epsilon() -> f32 {
-    1e-8
-}
-fn d_layer_stats_every() -> usize {
-    10
-}
-fn d_keep_steps() -> bool {
-    true
-}
-
-impl TrainConfig {
-    /// Parses a training config.
-    pub fn parse(text: &str) -> Result<Self> {
-        let config: Self = toml::from_str(text).map_err(|e| NnError::Config(e.to_string()))?;
-        if let Some(bad) = config
-            .pseudo_inputs
-            .iter()
-            .find(|l| !INPUT_LEVELS.contains(&l.as_str()))
-        {
-            return Err(NnError::Config(format!(
-                "pseudo_inputs: unknown input level {bad:?} (the levels are {INPUT_LEVELS:?})"
-            )));
-        }
-        Ok(config)
-    }
-
-    /// For which inputs (indexed like [`INPUT_LEVELS`]) the pseudo-reference may be the
-    /// target: none without `pseudo_references`, else those of `pseudo_inputs` (all if empty).
-    pub fn pseudo_for(&self) -> [bool; INPUT_LEVELS.len()] {
-        std::array::from_fn(|i| {
-            self.pseudo_references
-                && (self.pseudo_inputs.is_empty()
-                    || self.pseudo_inputs.iter().any(|l| l == INPUT_LEVELS[i]))
-        })
-    }
-
-    /// The network this config trains.
-    pub fn net_config(&self, base: &Path) -> Result<NetConfig> {
-        let p = base.join(&self.model);
-        if p.is_file() {
-            let text = std::fs::read_to_string(&p)
-                .map_err(|e| NnError::Config(format!("{}: {e}", p.display())))?;
-            NetConfig::parse(&text)
-        } else {
-            NetConfig::preset(&self.model)
-        }
-    }
-
-    /// The learning rate at a step: linear warm-up, then cosine decay to 5% of the peak.
-    pub fn lr_at(&self, step: usize) -> f64 {
-        if step < self.warmup {
-            return self.lr * (step + 1) as f64 / self.warmup as f64;
-        }
-        let t =
-            (step - self.warmup) as f64 / (self.steps.saturating_sub(self.warmup)).max(1) as f64;
-        self.lr * (0.05 + 0.95 * 0.5 * (1.0 + (std::f64::consts::PI * t.min(1.0)).cos()))
-    }
-}
 
 /// Saved between steps so a run can resume.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -212,148 +43,6 @@ pub struct Validation {
     pub loss: f64,
     /// Mean PSNR (tonemapped) of the full-window output against the cleanest target.
     pub psnr: f64,
-}
-
-/// A batch as tensors: features `[B,T,C,S,S]`, values `[B,T,3,S,S]`, target `[B,3,S,S]`.
-pub struct Batch {
-    /// Network input.
-    pub features: Tensor<5>,
-    /// Linear colour the kernels are applied to.
-    pub values: Tensor<5>,
-    /// Centre target.
-    pub target: Tensor<4>,
-    /// The centre frame's guide (linear colour) `[B, 3, S, S]`, for a network that reads one.
-    pub guide: Option<Tensor<4>>,
-    /// Per tile, the reciprocal of the exposure its colour features were divided by
-    /// (`[B, 1, 1, 1]`; 1 without exposure normalisation).
-    pub inv_exposure: Tensor<4>,
-}
-
-/// Crops and stacks tiles with their chosen (input, target) levels, with the input features
-/// a network configured with `inputs` reads (tiles of format 2 when it asks for exposure
-/// normalisation: [`Trainer::new`] checks).
-pub fn make_batch(
-    tiles: &[(Tile, usize, usize, usize, usize)],
-    frames: usize,
-    tile: usize,
-    crop: usize,
-    inputs: &InputConfig,
-    device: &Device,
-) -> Batch {
-    let b = tiles.len();
-    let (mut f, mut v, mut t) = (Vec::new(), Vec::new(), Vec::new());
-    let mut centre_guides = Vec::new();
-    let mut inv_exposure = Vec::new();
-    let cut = |data: &[f32], planes: usize, x0: usize, y0: usize, out: &mut Vec<f32>| {
-        for p in 0..planes {
-            for y in y0..y0 + crop {
-                out.extend_from_slice(
-                    &data[p * tile * tile + y * tile + x0..p * tile * tile + y * tile + x0 + crop],
-                );
-            }
-        }
-    };
-    for (tl, input, target, x0, y0) in tiles {
-        let mut base = Vec::with_capacity(frames * INPUT_CHANNELS * crop * crop);
-        cut(
-            &tl.features[*input],
-            frames * INPUT_CHANNELS,
-            *x0,
-            *y0,
-            &mut base,
-        );
-        let mut colour = Vec::with_capacity(frames * 3 * crop * crop);
-        cut(&tl.values[*input], frames * 3, *x0, *y0, &mut colour);
-        let guide = inputs.guide.then(|| {
-            let mut g = Vec::with_capacity(frames * 3 * crop * crop);
-            let stored = tl.guides[*input]
-                .as_ref()
-                .expect("a guided network trains on guided tiles (checked by Trainer::new)");
-            cut(stored, frames * 3, *x0, *y0, &mut g);
-            let centre = frames / 2 * 3 * crop * crop;
-            centre_guides.extend_from_slice(&g[centre..centre + 3 * crop * crop]);
-            g
-        });
-        let exposure = match tl.exposure[*input] {
-            Some(e) => e,
-            None if inputs.exposure => panic!("exposure normalisation needs format-2 tiles"),
-            None => 1.0,
-        };
-        inv_exposure.push(if inputs.exposure { 1.0 / exposure } else { 1.0 });
-        f.extend(network_features(
-            base,
-            &colour,
-            guide.as_deref(),
-            frames,
-            crop * crop,
-            inputs,
-            exposure,
-        ));
-        v.extend(colour);
-        cut(
-            tl.targets[*target].as_ref().expect("sampled targets exist"),
-            3,
-            *x0,
-            *y0,
-            &mut t,
-        );
-    }
-    Batch {
-        features: Tensor::from_data(
-            TensorData::new(f, [b, frames, inputs.channels(), crop, crop]),
-            device,
-        ),
-        values: Tensor::from_data(TensorData::new(v, [b, frames, 3, crop, crop]), device),
-        target: Tensor::from_data(TensorData::new(t, [b, 3, crop, crop]), device),
-        guide: inputs
-            .guide
-            .then(|| Tensor::from_data(TensorData::new(centre_guides, [b, 3, crop, crop]), device)),
-        inv_exposure: Tensor::from_data(TensorData::new(inv_exposure, [b, 1, 1, 1]), device),
-    }
-}
-
-/// A batch's colour values `[B, T, 3, S, S]` blended toward their guides by `beta`, for a
-/// network with the guide blend (`beta` is `None` without one: the values as they are).
-fn blend_values(
-    config: &NetConfig,
-    features: &Tensor<5>,
-    beta: Option<Tensor<5>>,
-    values: Tensor<5>,
-) -> Tensor<5> {
-    match beta {
-        Some(beta) => {
-            crate::model::guide_blend::GuideBlend::new(features, beta, &config.inputs, vec![0], 3)
-                .apply(values)
-        }
-        None => values,
-    }
-}
-
-/// The learned guide mix of a batch `b`, for a network with the head (`guides` then hold its
-/// weights, or the features its head reads with the result); the batch then has its centre
-/// guides.
-fn learned_mix<'a>(
-    denoiser: &'a Denoiser,
-    guides: &GuideWeights,
-    b: &Batch,
-) -> Option<LearnedMix<'a>> {
-    let weight = match (&guides.mix, &guides.mix_features) {
-        (Some(w), _) => MixWeights::Given(w.clone()),
-        (None, Some(features)) => MixWeights::OfResult {
-            denoiser,
-            features: features.clone(),
-            input: b.features.clone(),
-            inv_exposure: b.inv_exposure.clone(),
-        },
-        (None, None) => return None,
-    };
-    Some(LearnedMix {
-        weight,
-        guide: b
-            .guide
-            .clone()
-            .expect("a network with the guide mix reads a guide: its batches carry one"),
-    })
 }
 
 /// A network configured as `config` holding the weights of the model file `path`, refused when
@@ -716,6 +405,7 @@ impl Trainer {
         let denoiser = Denoiser {
             net: self.denoiser.net.valid(),
             config: self.denoiser.config.clone(),
+            recipe: self.denoiser.recipe.clone(),
         };
         let (mut loss, mut psnr) = (0.0, 0.0);
         for i in 0..n {
@@ -854,87 +544,6 @@ pub struct Progress {
     pub tiles_per_s: f64,
     /// The validation result, when this step validated.
     pub validation: Option<Validation>,
-}
-
-/// Removes the rows logged after `step` from a run's metrics CSV (left by a run killed between
-/// checkpoints), so a resumed run's curves have one row per step and kind.
-fn drop_metrics_after(path: &Path, step: usize) -> Result<()> {
-    drop_rows_from(path, step + 1)
-}
-
-/// Removes the rows of a run's CSV whose first column (a step) is `first` or later.
-fn drop_rows_from(path: &Path, first: usize) -> Result<()> {
-    let Ok(text) = std::fs::read_to_string(path) else {
-        return Ok(()); // no metrics yet
-    };
-    // a last line without its newline is a row cut short by a kill in mid-append
-    let whole = match text.rfind('\n') {
-        Some(i) => &text[..=i],
-        None => "",
-    };
-    let kept: String = whole
-        .lines()
-        .enumerate()
-        .filter(|(i, l)| {
-            *i == 0
-                || l.split(',')
-                    .next()
-                    .and_then(|s| s.parse::<usize>().ok())
-                    .is_none_or(|s| s < first)
-        })
-        .map(|(_, l)| format!("{l}\n"))
-        .collect();
-    if kept.len() == text.len() {
-        return Ok(());
-    }
-    write_bytes_atomically(path, kept.as_bytes())?;
-    Ok(())
-}
-
-/// A run's checkpoint files for `step`: the Burnpack weights and the optimizer state.
-pub fn checkpoint_files(out: &Path, step: usize) -> [PathBuf; 2] {
-    [
-        out.join(format!("checkpoint-{step:07}.bpk")),
-        out.join(format!("optimizer-{step:07}.bpk")),
-    ]
-}
-
-/// Whether `name` is a checkpoint file of some step (or of a run from before checkpoint files
-/// were named by step).
-fn is_checkpoint_file(name: &str) -> bool {
-    let numbered = |prefix: &str| {
-        name.strip_prefix(prefix)
-            .and_then(|r| r.strip_suffix(".bpk"))
-            .is_some_and(|n| !n.is_empty() && n.bytes().all(|b| b.is_ascii_digit()))
-    };
-    numbered("checkpoint-")
-        || numbered("optimizer-")
-        || name == "checkpoint.bpk"
-        || name == "optimizer.bpk"
-}
-
-/// Removes the checkpoint files of every step but `keep` (an earlier checkpoint, or the
-/// uncommitted one of a run killed before its `state.json`). A file that cannot be removed
-/// is logged and left: it costs disk, not correctness.
-fn remove_other_checkpoints(out: &Path, keep: usize) {
-    let kept = checkpoint_files(out, keep);
-    let Ok(entries) = std::fs::read_dir(out) else {
-        return;
-    };
-    for e in entries.flatten() {
-        let path = e.path();
-        let name = e.file_name();
-        if is_checkpoint_file(&name.to_string_lossy()) && !kept.contains(&path) {
-            if let Err(err) = std::fs::remove_file(&path) {
-                tracing::warn!("could not remove {}: {err}", path.display());
-            }
-        }
-    }
-}
-
-/// Where a run keeps the weights of one validation point (`keep_steps`).
-pub fn step_model_path(out: &Path, step: usize) -> PathBuf {
-    out.join("steps").join(format!("step-{step}.safetensors"))
 }
 
 impl Trainer {

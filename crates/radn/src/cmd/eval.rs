@@ -17,6 +17,7 @@ use radn_nn::infer::utilization::{write_heatmap, Utilization};
 use rayon::prelude::*;
 
 use crate::input::{ChannelArgs, GuideArgs};
+use crate::model::GuideRequest;
 
 /// Arguments of `radn eval`.
 #[derive(clap::Args)]
@@ -239,9 +240,16 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
         .iter()
         .position(|(f, _)| *f == display)
         .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
-    let net = crate::model::network_for(a.model.as_deref(), &a.guide, a.device)?;
+    let chosen = crate::model::choose_path(
+        a.model.as_deref(),
+        &GuideRequest::Given(a.guide.guide.clone()),
+        a.guide.oidn_threads,
+        a.device,
+    )?;
+    let net = chosen.network;
     let mut reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
-    let oidn = a.guide.apply(&mut reader)?;
+    reader.guide = chosen.guide.layer();
+    let oidn = chosen.oidn;
     let paths: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
     let mut windows = WindowReader::new(&reader, &paths, net.radius())
         .with_guides(GuideArgs::window_guides(oidn, &paths));
@@ -254,10 +262,17 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
 fn utilization(a: &Args) -> Result<()> {
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
-    let net = crate::model::network_for(a.model.as_deref(), &a.guide, a.device)?;
+    let chosen = crate::model::choose_path(
+        a.model.as_deref(),
+        &GuideRequest::Given(a.guide.guide.clone()),
+        a.guide.oidn_threads,
+        a.device,
+    )?;
+    let net = chosen.network;
     let model = crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some());
     let mut reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
-    let oidn = a.guide.apply(&mut reader)?;
+    reader.guide = chosen.guide.layer();
+    let oidn = chosen.oidn;
     let paths: Vec<PathBuf> = files.iter().map(|(_, p)| p.clone()).collect();
     let mut windows = WindowReader::new(&reader, &paths, net.radius())
         .with_guides(GuideArgs::window_guides(oidn, &paths));

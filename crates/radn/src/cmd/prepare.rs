@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use radn_core::setting::{Positive, Setting};
 use radn_nn::train::dataset::{prepare, PrepareOptions};
 
 /// Arguments of `radn prepare`.
@@ -32,11 +33,11 @@ pub struct Args {
     /// Open Image Denoise of that very render; `denoised` or a layer: read from the files).
     #[command(flatten)]
     pub guide: crate::input::GuideArgs,
-    /// With a guide: align the stored windows with the guide term of the confidence at this
-    /// tolerance, as `radn denoise --guide-confidence` does (e.g. 0.6, its default); `off`
-    /// (the default here, as every shipped model's tiles were made): the geometric terms alone.
-    #[arg(long, value_name = "off|TOL", default_value = "off", value_parser = parse_tolerance)]
-    pub guide_confidence: Tolerance,
+    /// With a guide: align the stored windows with the guide term of the confidence, as a
+    /// guided model's recipe does (`auto`: its tolerance; `off`, the default, as every shipped
+    /// model's tiles were made: the geometric terms alone).
+    #[arg(long, value_name = "auto|off|TOL", default_value = "off")]
+    pub guide_confidence: Setting<Positive>,
     /// How alignment samples the side frames between pixels: `bilinear` (the default model's
     /// tiles) or `catmull-rom` (keeps one-pixel detail through subpixel motion; the compiled-in
     /// guided model's). A network trains only on tiles prepared the way its description's
@@ -44,45 +45,37 @@ pub struct Args {
     #[arg(long, value_enum, default_value_t = crate::input::ResamplingArg::Bilinear)]
     pub resampling: crate::input::ResamplingArg,
     /// Loosen alignment's confidence terms that compare sampled buffers (albedo, normal,
-    /// depth) with each window's noise level, up to K times, as `radn denoise
-    /// --loosen-confidence` does, so a guided network trains on the windows it sees at
-    /// inference: `auto` is `radn denoise`'s default for this guide (4 with a guide, off
-    /// without); `off` (the default here, as every shipped model's tiles were made): strict.
-    #[arg(long, value_name = "auto|off|K", default_value = "off", value_parser = crate::input::parse_loosening)]
-    pub loosen_confidence: crate::input::Loosening,
-}
-
-/// `--guide-confidence`'s value: a tolerance, `None` for `off`.
-#[derive(Clone, Copy, Debug)]
-pub struct Tolerance(pub Option<f32>);
-
-/// Parses `off` or a positive tolerance.
-fn parse_tolerance(s: &str) -> Result<Tolerance, String> {
-    match s {
-        "off" => Ok(Tolerance(None)),
-        t => match t.parse::<f32>() {
-            Ok(t) if t > 0.0 && t.is_finite() => Ok(Tolerance(Some(t))),
-            _ => Err(format!("'{t}' is not off or a positive tolerance")),
-        },
-    }
+    /// depth) with each window's noise level, up to K times, as a model's recipe does at
+    /// inference, so a network trains on the windows it will see (`auto`: the recipe's for
+    /// this guide; `off`, the default, as every shipped model's tiles were made: strict).
+    #[arg(long, value_name = "auto|off|K", default_value = "off")]
+    pub loosen_confidence: Setting<Positive>,
 }
 
 /// Cuts the tiles.
 pub fn run(a: Args) -> Result<()> {
     let scenes = radn_core::sequence::scene_folders(&a.data, "high")?.len();
     let pb = crate::progress::frames(scenes as u64, "scenes");
+    // `auto` takes the values a model of this kind is tuned with: its recipe
+    let recipe = radn_nn::Recipe::for_kind(a.guide.guide.is_some());
+    let loosen = a
+        .loosen_confidence
+        .resolve(recipe.confidence.loosen_sampled.map(Positive))
+        .map(|k| k.0);
+    if let Some(k) = loosen.filter(|k| *k < 1.0) {
+        anyhow::bail!("--loosen-confidence {k}: a loosening is a factor of at least 1");
+    }
     let opts = PrepareOptions {
         pseudo_level: a.pseudo.clone(),
         guide: a.guide.guide.clone(),
         oidn_threads: a.guide.oidn_threads,
-        guide_confidence: a.guide_confidence.0,
+        guide_confidence: a
+            .guide_confidence
+            .resolve(recipe.confidence.guide.map(Positive))
+            .map(|t| t.0),
         resampling: a.resampling.into(),
-        loosen_sampled_terms: a.loosen_confidence.resolve(
-            a.guide
-                .guide
-                .is_some()
-                .then_some(radn_nn::infer::DEFAULT_SAMPLED_TERMS_LOOSENING),
-        ),
+        loosen_sampled_terms: loosen,
+        schedule: recipe.schedule,
         ..PrepareOptions::new(a.tile, a.tiles_per_window, a.seed)
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {

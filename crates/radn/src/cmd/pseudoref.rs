@@ -8,8 +8,8 @@ use radn_core::frame::Requirements;
 use radn_core::job::SequenceJob;
 use radn_core::sequence::{scene_folders, SequencePattern};
 
-use super::denoise::ClassicArgs;
 use crate::input::ChannelArgs;
+use radn_core::classic::pipeline::ClassicDenoiser;
 
 /// Arguments of `radn pseudoref`.
 #[derive(clap::Args)]
@@ -27,8 +27,10 @@ pub struct Args {
     /// Recompute frames that already exist (default: skip them, so a killed run resumes).
     #[arg(long)]
     pub overwrite: bool,
-    #[command(flatten)]
-    pub classic: ClassicArgs,
+    /// Override a classic denoiser setting, classic.KEY=VALUE (repeatable; `radn denoise
+    /// --tune help` lists the keys).
+    #[arg(long, value_name = "classic.KEY=VALUE")]
+    pub tune: Vec<String>,
     #[command(flatten)]
     pub channels: ChannelArgs,
 }
@@ -36,7 +38,15 @@ pub struct Args {
 /// Makes the pseudo-references, scene by scene.
 pub fn run(a: Args) -> Result<()> {
     let scenes = scene_folders(&a.data, &a.level)?;
-    let method = a.classic.denoiser();
+    let mut method = ClassicDenoiser::default();
+    for t in &a.tune {
+        let (key, value) = t
+            .split_once('=')
+            .ok_or_else(|| anyhow::anyhow!("--tune {t}: give classic.KEY=VALUE"))?;
+        method
+            .set(key.trim(), value.trim())
+            .map_err(anyhow::Error::msg)?;
+    }
     let mut jobs = Vec::new();
     for s in &scenes {
         let input = SequencePattern::from_folder(&s.join(&a.level))?;

@@ -4,7 +4,7 @@
 //!
 //! Why: burn's `flex` backend converts every convolution's input to NHWC on one thread and
 //! scatters the GEMM result back pixel by pixel; on 2 cores that left the GEMM kernels about a
-//! third of a denoising run (docs/benchmarks.md, "Convolutions on the CPU"). This path computes
+//! third of a denoising run (docs/research/benchmarks.md, "Convolutions on the CPU"). This path computes
 //! the same function (equal to burn's to float rounding, tested) and is used only where it
 //! applies: the `flex` device without autodiff, stride 1, no dilation, one group, odd kernels
 //! with same-size padding. Everything else — training, other backends, other shapes — runs
@@ -184,7 +184,7 @@ pub enum ConvPath {
 
 /// The path for every layer on this CPU: the direct one wherever the CPU has AVX2 and FMA, or
 /// AVX-512. `radn bench --convs` times both on every layer shape of the shipped
-/// models; the direct path was the faster on each (docs/benchmarks.md). The environment
+/// models; the direct path was the faster on each (docs/research/benchmarks.md). The environment
 /// variable `RADN_CPU_CONV=gemm` keeps the GEMM path everywhere (to compare whole runs, or for
 /// a CPU where it measures faster).
 pub fn preferred_path() -> ConvPath {

@@ -1,0 +1,211 @@
+//! A model's recipe: every tuned inference setting in one place, saved in the model file beside
+//! its configuration. `radn denoise`, `radn prepare` and library callers
+//! ([`crate::infer::NetworkDenoiser::new`]) all read it; command-line flags and
+//! `--tune KEY=VALUE` only override its fields.
+//!
+//! A model file without a recipe gets the one its kind was tuned with ([`Recipe::tuned_for`]).
+//! Why each value is what it is, and what else was measured, is in `docs/research/`.
+
+pub mod keys;
+
+use serde::{Deserialize, Serialize};
+
+use radn_core::warp::Resampling;
+
+use crate::infer::guide_mix::{MixGuide, OutlierRamp};
+use crate::infer::input_blend::InputBlend;
+use crate::infer::schedule::NoiseSchedule;
+use crate::model::config::NetConfig;
+
+/// The tuned inference settings of one model.
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Recipe {
+    /// Kernel threshold t (paper eq. 3); `None`: the configuration's default.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub threshold: Option<f32>,
+    /// How side frames are sampled between pixels; `None`: as the model was trained.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub resampling: Option<Resampling>,
+    /// The noise-level schedule the level-following stages share.
+    pub schedule: NoiseSchedule,
+    /// Alignment's confidence terms.
+    pub confidence: ConfidenceRecipe,
+    /// The input blend after the kernels; `None`: the kernels' result as it is.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub input_blend: Option<InputBlend>,
+    /// The guide mix after the input blend (guided models).
+    pub guide_mix: GuideMixRecipe,
+    /// The temporal pass over the results; `None`: no pass.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stabilize: Option<StabilizeRecipe>,
+}
+
+/// Alignment's appearance and sampled-buffer confidence terms.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ConfidenceRecipe {
+    /// The guide term's tolerance (runs with a guide); `None`: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub guide: Option<f32>,
+    /// The colour term's tolerance at the cleanest frames, loosened by the schedule; `None`: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color: Option<f32>,
+    /// The most the sampled buffers' terms (albedo, normal, depth) loosen with the noise level;
+    /// `None`: strict at every level.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub loosen_sampled: Option<f32>,
+}
+
+/// The guide mix of a guided model.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct GuideMixRecipe {
+    /// The guide's weight in [0, 1] (0: the network's result alone).
+    pub weight: f32,
+    /// Which guide: the centre frame's, the window's, or by the noise level.
+    pub from: MixGuide,
+    /// The window guide's range σ at the cleanest frames; `None`: confidence alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub range: Option<f32>,
+    /// Where the result and the guide disagree by far more than detail does, the guide alone.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub outliers: Option<OutlierRamp>,
+    /// For a network with a learned mix head: mix by its predicted weights.
+    pub learned: bool,
+}
+
+/// The temporal pass over the results ([`radn_core::stabilize::TemporalStabilizer`]).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StabilizeRecipe {
+    /// σ in local RMS of the frame's render noise.
+    pub strength: f32,
+    /// The smallest σ.
+    pub floor: f32,
+    /// The noise box's radius.
+    pub noise_radius: usize,
+}
+
+impl StabilizeRecipe {
+    /// The pass these settings describe.
+    pub fn stabilizer(&self) -> radn_core::stabilize::TemporalStabilizer {
+        radn_core::stabilize::TemporalStabilizer::new(self.strength, self.floor, self.noise_radius)
+    }
+}
+
+/// The tuned values: the one place they live. Chosen on validation sets
+/// (`docs/research/guided.md`, `docs/research/detail.md`).
+mod tuned {
+    use super::*;
+
+    pub const SCHEDULE: NoiseSchedule = NoiseSchedule {
+        min_scale: 2.0,
+        level_at_min: 0.25,
+        exponent: 1.0,
+        max_scale: 8.0,
+    };
+    pub const INPUT_BLEND_RADIUS: usize = 1;
+    pub const GUIDE_CONFIDENCE: f32 = 0.6;
+    pub const COLOR_CONFIDENCE: f32 = 0.5;
+    pub const LOOSEN_SAMPLED: f32 = 4.0;
+    pub const GUIDE_MIX: f32 = 0.7;
+    pub const GUIDE_MIX_RANGE: f32 = 0.02;
+    pub const OUTLIERS: OutlierRamp = OutlierRamp {
+        from: 0.03,
+        to: 0.1,
+    };
+    pub const STABILIZE: StabilizeRecipe = StabilizeRecipe {
+        strength: 0.3,
+        floor: 0.0005,
+        noise_radius: 2,
+    };
+}
+
+impl Recipe {
+    /// The recipe a model of configuration `config` was tuned with: for a guided model the
+    /// guided path (guide confidence, loosened sampled terms, the ranged window-guide mix with
+    /// outliers, the temporal pass); for others the colour confidence and the input blend.
+    pub fn tuned_for(config: &NetConfig) -> Self {
+        Self::for_kind(config.inputs.guide)
+    }
+
+    /// The recipe of the shipped models of a kind: guided (`guided`) or unguided.
+    pub fn for_kind(guided: bool) -> Self {
+        Self {
+            threshold: None,
+            resampling: None,
+            schedule: tuned::SCHEDULE,
+            confidence: ConfidenceRecipe {
+                guide: guided.then_some(tuned::GUIDE_CONFIDENCE),
+                color: (!guided).then_some(tuned::COLOR_CONFIDENCE),
+                loosen_sampled: guided.then_some(tuned::LOOSEN_SAMPLED),
+            },
+            input_blend: Some(InputBlend {
+                radius: tuned::INPUT_BLEND_RADIUS,
+                noise_scale: None,
+            }),
+            guide_mix: GuideMixRecipe {
+                weight: if guided { tuned::GUIDE_MIX } else { 0.0 },
+                from: MixGuide::FollowLevel,
+                range: guided.then_some(tuned::GUIDE_MIX_RANGE),
+                outliers: guided.then_some(tuned::OUTLIERS),
+                learned: true,
+            },
+            stabilize: guided.then_some(tuned::STABILIZE),
+        }
+    }
+
+    /// This recipe with every stage around the kernels off (appearance and loosened confidence
+    /// terms, input blend, guide mix, temporal pass): the kernels' result alone, for measuring
+    /// what the stages add. Threshold, resampling and schedule are kept.
+    pub fn without_stages(mut self) -> Self {
+        self.confidence = ConfidenceRecipe {
+            guide: None,
+            color: None,
+            loosen_sampled: None,
+        };
+        self.input_blend = None;
+        self.guide_mix = GuideMixRecipe {
+            weight: 0.0,
+            from: self.guide_mix.from,
+            range: None,
+            outliers: None,
+            learned: false,
+        };
+        self.stabilize = None;
+        self
+    }
+
+    /// The recipe as TOML (what a model file stores).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a recipe serialises")
+    }
+
+    /// A recipe from TOML.
+    pub fn from_toml(text: &str) -> Result<Self, String> {
+        toml::from_str(text).map_err(|e| e.to_string())
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_recipe_survives_its_toml() {
+        for guided in [false, true] {
+            let mut c = NetConfig::preset("small").unwrap();
+            c.inputs.guide = guided;
+            let r = Recipe::tuned_for(&c);
+            assert_eq!(Recipe::from_toml(&r.to_toml()).unwrap(), r);
+        }
+    }
+
+    #[test]
+    fn unknown_fields_are_refused() {
+        let mut text = Recipe::tuned_for(&NetConfig::preset("small").unwrap()).to_toml();
+        text.insert_str(0, "mystery = 1\n");
+        assert!(Recipe::from_toml(&text).unwrap_err().contains("mystery"));
+    }
+}
