@@ -41,12 +41,12 @@ pub mod output;
 pub mod output_locks;
 pub mod passes;
 pub mod plane;
+pub mod post;
 pub mod reference_noise;
 pub mod report;
 pub mod row_store;
 pub mod sequence;
 pub mod setting;
-pub mod stabilize;
 pub mod warp;
 pub mod window;
 

@@ -1,5 +1,5 @@
 //! A frame's noise level: one number that says how noisy a whole frame is, so that what must
-//! follow the sample count (the network's input blend, [`crate::classic::wiener`]) can follow it
+//! follow the sample count (the network's input blend, [`crate::post::wiener`]) can follow it
 //! per frame rather than per pixel (a 128-spp frame's dark pixels are as noisy, relatively, as a
 //! 4-spp frame's bright ones, yet want the settings of a clean frame: docs/research/detail.md).
 //!

@@ -1,7 +1,7 @@
 //! A denoising run as a user asks for it: chosen frames of a sequence, written to an output
 //! pattern, in one pass or several (paper section 3: running the network again on its own
 //! output widens the temporal reach), optionally followed by a temporal pass over the results
-//! ([`crate::stabilize`]). A frame range is denoised exactly as the same frames of a run over
+//! ([`crate::post::stabilize`]). A frame range is denoised exactly as the same frames of a run over
 //! the whole sequence: every pass reads the neighbours beyond the range that its windows, and
 //! the later passes' windows, reach.
 
@@ -13,8 +13,8 @@ use crate::exr_file::SampleKind;
 use crate::frame::FrameReader;
 use crate::guide::{JobGuides, OidnGuides};
 use crate::job::{Bands, JobReport, SequenceJob};
+use crate::post::stabilize::TemporalStabilizer;
 use crate::sequence::SequencePattern;
-use crate::stabilize::TemporalStabilizer;
 
 /// Chosen frames of a sequence to denoise into an output pattern, in `passes` passes.
 pub struct DenoiseRun {
@@ -40,7 +40,7 @@ pub struct DenoiseRun {
     /// Whether a method that can goes band by band.
     pub bands: Bands,
     /// A temporal pass over the last denoising pass's results, run after it as one more pass
-    /// ([`crate::stabilize`]); `None`: the denoising passes' results are the outputs.
+    /// ([`crate::post::stabilize`]); `None`: the denoising passes' results are the outputs.
     pub stabilize: Option<TemporalStabilizer>,
 }
 

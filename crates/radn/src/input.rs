@@ -15,17 +15,23 @@ use radn_core::mapping::ChannelMapping;
 /// How to find the buffers radn needs in the input files.
 #[derive(clap::Args, Clone, Debug)]
 pub struct ChannelArgs {
-    /// Renderer preset: cycles, arnold, renderman, karma, generic, or auto (detect).
-    #[arg(long, default_value = "auto")]
+    /// auto, cycles, arnold, renderman, karma, generic.
+    #[arg(long, default_value = "auto", value_name = "PRESET")]
     pub preset: String,
-    /// A channel mapping file (TOML, same format as crates/radn-core/presets/*.toml); overrides --preset.
-    #[arg(long)]
+    /// Channel mapping file (TOML); overrides --preset.
+    #[arg(long, value_name = "FILE")]
     pub mapping: Option<PathBuf>,
-    /// The view layer to use when a file holds several (e.g. "ViewLayer").
-    #[arg(long)]
+    /// The view layer, where a file holds several.
+    #[arg(long, value_name = "NAME")]
     pub layer: Option<String>,
-    /// NaN/Inf samples: repair them (and report the count) or stop with an error.
-    #[arg(long, value_enum, default_value = "repair")]
+    /// NaN/Inf samples: repair (and count) or error.
+    #[arg(
+        long,
+        value_enum,
+        default_value = "repair",
+        value_name = "POLICY",
+        hide_possible_values = true
+    )]
     pub nonfinite: NonFinite,
 }
 

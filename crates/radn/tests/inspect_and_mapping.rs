@@ -155,3 +155,102 @@ scale = [1.0, -1.0]
     let e = String::from_utf8_lossy(&res.stderr);
     assert!(e.contains("studio.toml") && e.contains("colour"), "{e}");
 }
+
+#[test]
+fn a_generic_layout_file_is_detected_as_generic_and_denoises_without_a_preset() {
+    // R,G,B,A; albedo.*; N.*; Z; motion.X/Y: the generic preset's layout, which Arnold's
+    // preset also half fits (it lacks Arnold's motionvector channels)
+    let d = tempfile::tempdir().unwrap();
+    let (w, h) = (24, 16);
+    let n = w * h;
+    let ramp = |k: f32| {
+        (0..n)
+            .map(|i| 0.2 + k * (i % 7) as f32)
+            .collect::<Vec<f32>>()
+    };
+    for f in 1..=3 {
+        let p = d.path().join(format!("g.{f:04}.exr"));
+        let mut ch = Vec::new();
+        for (name, v) in [
+            ("R", ramp(0.05)),
+            ("G", ramp(0.04)),
+            ("B", ramp(0.03)),
+            ("A", vec![1.0; n]),
+            ("albedo.R", vec![0.5; n]),
+            ("albedo.G", vec![0.5; n]),
+            ("albedo.B", vec![0.5; n]),
+            ("N.X", vec![0.0; n]),
+            ("N.Y", vec![0.0; n]),
+            ("N.Z", vec![1.0; n]),
+            ("Z", vec![3.0; n]),
+            ("motion.X", vec![0.0; n]),
+            ("motion.Y", vec![0.0; n]),
+        ] {
+            ch.push((name.to_string(), v));
+        }
+        ExrFile::from_channels(&p, w, h, ch, SampleKind::F32)
+            .write_atomic(&p)
+            .unwrap();
+    }
+    let first = d.path().join("g.0001.exr");
+    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(["inspect", first.to_str().unwrap(), "--json"])
+        .output()
+        .unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["preset"], "generic");
+    let pattern = format!("{}/g.####.exr", d.path().display());
+    let o = format!("{}/o/g.####.exr", d.path().display());
+    let res = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(["denoise", "-i", &pattern, "-o", &o, "--guide", "none"])
+        .output()
+        .unwrap();
+    assert!(
+        res.status.success(),
+        "{}",
+        String::from_utf8_lossy(&res.stderr)
+    );
+    assert!(d.path().join("o/g.0002.exr").exists());
+}
+
+#[test]
+fn denoise_help_fits_a_screen_under_headings_and_tune_help_lists_the_recipe() {
+    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(["denoise", "--help"])
+        .output()
+        .unwrap();
+    let help = String::from_utf8_lossy(&out.stdout);
+    let lines = help.lines().count();
+    assert!(lines <= 80, "{lines} lines:\n{help}");
+    for heading in ["Input and output:", "Quality:", "Performance:", "Advanced:"] {
+        assert!(help.contains(heading), "no '{heading}' in:\n{help}");
+    }
+    // one line per option, and no measurements, documents or issue numbers in the help
+    assert!(help.lines().all(|l| l.len() <= 110), "{help}");
+    for banned in [" dB", "docs/", "issue", "2026-"] {
+        assert!(!help.contains(banned), "'{banned}' in:\n{help}");
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(["denoise", "--tune", "help"])
+        .output()
+        .unwrap();
+    let tune = String::from_utf8_lossy(&out.stdout);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    // the guided model's recipe beside the unguided one's, and the classic keys
+    let line = |key: &str| {
+        tune.lines()
+            .find(|l| l.split_whitespace().next() == Some(key))
+            .unwrap_or_else(|| panic!("no {key} in:\n{tune}"))
+            .split_whitespace()
+            .map(str::to_string)
+            .collect::<Vec<_>>()
+    };
+    assert_eq!(line("mix.weight")[1..3], ["0.7", "0"]);
+    assert_eq!(line("stabilize")[1..3], ["0.3", "off"]);
+    assert_eq!(line("confidence.color")[1..3], ["off", "0.5"]);
+    assert_eq!(line("classic.nlm-strength")[1], "0.45");
+}

@@ -9,7 +9,6 @@ pub mod pipeline;
 pub mod refine;
 pub mod temporal;
 pub mod tvl1;
-pub mod wiener;
 
 /// Deterministic white noise in −0.5..0.5 per pixel and channel, for the stages' tests.
 #[cfg(test)]

@@ -9,13 +9,13 @@ use super::guided::{guided_filter, GuidedParams};
 use super::nlm::{nlm, NlmGuide, NlmParams};
 use super::refine::{refine_motion, RefineParams};
 use super::temporal::{apply_weights, robust_weights, temporal_variance};
-use super::wiener::{blend, blend_weight, local_variance, BlendParams};
 use crate::align::{align_window, AlignParams};
 use crate::confidence::box3;
 use crate::frame::Frame;
 use crate::image_ops::box_mean;
 use crate::motion::invert;
 use crate::plane::Plane;
+use crate::post::wiener::{blend, blend_weight, local_variance, BlendParams};
 
 /// All options of the classic denoiser.
 #[derive(Clone, Copy, Debug)]

@@ -22,6 +22,48 @@ use radn_core::align::AlignedWindow;
 use radn_core::Plane;
 
 use crate::infer::schedule::NoiseSchedule;
+use crate::infer::signals::Signals;
+
+/// The guide mix as a stage of a frame's chain ([`crate::infer::post::PostChain`]).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct MixStage {
+    /// The guide's weight where no learned head gives one per pixel.
+    pub weight: f32,
+    /// Where the guide alone is taken.
+    pub outliers: Option<OutlierRamp>,
+    /// `None`: the centre frame's guide; `Some(range)`: the window's ([`window_guide`]).
+    pub window: Option<Option<f32>>,
+}
+
+impl MixStage {
+    /// Mixes rows `rows` of the result `out` (stacked as `signals`) with the guide, by the
+    /// learned weights `learned` where the network gives them; frames without a guide, and a
+    /// mix that would change nothing, are left alone.
+    pub fn apply(
+        &self,
+        win: &AlignedWindow,
+        signals: &Signals,
+        out: &mut Plane,
+        rows: Range<usize>,
+        learned: Option<&Plane>,
+    ) {
+        let Some(guide) = &win.centre().guide else {
+            return;
+        };
+        if !(self.weight > 0.0 || self.outliers.is_some() || learned.is_some()) {
+            return;
+        }
+        let g = match self.window {
+            Some(range) => window_guide(win, rows, range),
+            None => guide.rows(rows),
+        };
+        let weight = match learned {
+            Some(w) => MixWeight::PerPixel(w.channel(0)),
+            None => MixWeight::Uniform(self.weight),
+        };
+        mix_with_guide(out, &g, weight, self.outliers, &signals.rgb_aovs())
+    }
+}
 
 /// `ε` of the gain: the smallest linear colour the guide is divided by. Below it, a pixel
 /// takes the guide in proportion to its own value. That is far below anything visible after

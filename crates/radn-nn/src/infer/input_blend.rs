@@ -1,5 +1,5 @@
 //! The input blend, a stage after the kernels: per pixel, the network's result is blended with
-//! the input by the Wiener gain ([`radn_core::classic::wiener`]), so that it keeps only the
+//! the input by the Wiener gain ([`radn_core::post::wiener`]), so that it keeps only the
 //! change the input's noise explains and does not average a clean input's detail away.
 //!
 //! How many noise variances of change still count as noise (the noise scale K) must follow the
@@ -8,10 +8,15 @@
 //! K is set once per frame from the frame's noise level by the recipe's
 //! [`NoiseSchedule`](crate::infer::schedule::NoiseSchedule).
 
-use radn_core::classic::wiener::BlendParams;
+use std::ops::Range;
+
+use radn_core::align::AlignedWindow;
+use radn_core::post::wiener::{blend, blend_weight, window_noise_variance, BlendParams};
+use radn_core::Plane;
 use serde::{Deserialize, Serialize};
 
 use crate::infer::schedule::NoiseSchedule;
+use crate::infer::signals::Signals;
 
 /// Options of the input blend.
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
@@ -37,6 +42,22 @@ impl InputBlend {
             noise_scale,
         })
     }
+}
+
+/// The input blend of the kernels' result `filtered` (every signal, stacked as [`Signals`])
+/// over rows `read` of `win`: per pixel, the Wiener gain of the beauty's change against the
+/// window's noise, applied to every signal alike (still one linear operator per signal, so
+/// AOVs keep summing and alpha stays in range).
+pub fn apply(win: &AlignedWindow, filtered: &Plane, read: Range<usize>, p: &BlendParams) -> Plane {
+    let input = Signals::centre_values(win, read.clone());
+    let var = window_noise_variance(win, read);
+    let weight = blend_weight(
+        &input.select_channels(0, 3),
+        &filtered.select_channels(0, 3),
+        &var,
+        p,
+    );
+    blend(&input, filtered, &weight)
 }
 
 #[cfg(test)]

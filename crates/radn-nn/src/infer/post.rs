@@ -1,27 +1,104 @@
-//! A window's result: the kernels' result over the rows asked for, then the stages after the
-//! network that the recipe switches on, in order (the input blend, the guide mix), each over
-//! the same stacking of signals (colour, then each AOV, then alpha).
+//! A window's result: the kernels' result, then the chain of stages after the network, in
+//! order, each in its own module and each over the same stacking of signals ([`Signals`]):
+//!
+//! 1. the input blend ([`input_blend`]): back towards the input where the change is more than
+//!    the noise explains;
+//! 2. the guide mix ([`guide_mix`], guided models): towards the window's aligned guides.
+//!
+//! The temporal pass over the results ([`radn_core::post::stabilize`]) follows at the
+//! sequence level, once every frame's result exists. Which stages run, and how, is the
+//! model's recipe for the frame's noise level ([`PostChain`]).
 
 use burn::tensor::Tensor;
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
-use radn_core::classic::wiener::{blend, blend_weight, window_noise_variance};
 use radn_core::denoiser::Denoised;
+use radn_core::post::wiener::BlendParams;
 use radn_core::Plane;
 
 use crate::infer::input::{FeatureScales, Region};
+use crate::infer::signals::Signals;
 use crate::infer::stems::WindowStems;
 use crate::model::demod::{filter, Demodulation};
 use crate::model::guide_blend::GuideBlend;
 use crate::profile::{timed, Stage};
 
-use super::{guide_mix, NetworkDenoiser};
+use super::{guide_mix, input_blend, NetworkDenoiser};
+
+/// The stages after the kernels for one frame, as its model's recipe sets them at the frame's
+/// noise level.
+#[derive(Clone, Debug)]
+pub struct PostChain {
+    /// The input blend's parameters; `None` where the frame keeps the kernels' result.
+    pub input_blend: Option<BlendParams>,
+    /// The guide mix; `None` for a model that reads no guide.
+    pub guide_mix: Option<guide_mix::MixStage>,
+}
+
+impl PostChain {
+    /// Rows beyond a result's own that the chain reads from the kernels' result.
+    pub fn margin(&self) -> usize {
+        self.input_blend.map_or(0, |p| p.radius)
+    }
+
+    /// The chain's result over rows `rows` of `win`, from the kernels' result `kernels` over
+    /// rows `read` (`rows` and the chain's margin, clipped to the frame) and, for a network
+    /// with a learned mix head, its weights over `read`.
+    pub fn run(
+        &self,
+        win: &AlignedWindow,
+        signals: &Signals,
+        kernels: Plane,
+        read: Range<usize>,
+        rows: Range<usize>,
+        learned: Option<Plane>,
+    ) -> Plane {
+        let inside = rows.start - read.start..rows.end - read.start;
+        let whole = inside == (0..kernels.height());
+        let learned = learned.map(|w| if whole { w } else { w.rows(inside.clone()) });
+        let mut out = match &self.input_blend {
+            Some(p) => timed(Stage::InputBlend, || {
+                input_blend::apply(win, &kernels, read, p).rows(inside)
+            }),
+            None if whole => kernels,
+            None => kernels.rows(inside),
+        };
+        if let Some(mix) = &self.guide_mix {
+            timed(Stage::GuideMix, || {
+                mix.apply(win, signals, &mut out, rows, learned.as_ref())
+            });
+        }
+        out
+    }
+}
 
 impl NetworkDenoiser {
-    /// Denoises rows `rows` of an aligned window (a band of a frame whose whole-frame
-    /// feature scales are `scales`); rows beyond the window's own are never read, so a band must carry the
-    /// receptive field's rows around `rows` unless they are the frame's edge.
+    /// The stages after the kernels for a frame of noise level `level`.
+    pub fn post_chain(&self, level: Option<f32>) -> PostChain {
+        let mix = &self.recipe.guide_mix;
+        PostChain {
+            input_blend: self
+                .recipe
+                .input_blend
+                .and_then(|b| b.params(level, &self.recipe.schedule)),
+            guide_mix: self
+                .denoiser
+                .config
+                .inputs
+                .guide
+                .then(|| guide_mix::MixStage {
+                    weight: mix.weight,
+                    outliers: mix.outliers,
+                    window: self.guide_mix_range_for(level),
+                }),
+        }
+    }
+
+    /// Denoises rows `rows` of an aligned window (a band of a frame whose whole-frame feature
+    /// scales are `scales`): the kernels, then the [`PostChain`]. Rows beyond the window's own
+    /// are never read, so a band must carry the receptive field's rows around `rows` unless
+    /// they are the frame's edge.
     pub fn denoise_rows(
         &self,
         win: &AlignedWindow,
@@ -29,73 +106,13 @@ impl NetworkDenoiser {
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
-        let blend_params = self
-            .recipe
-            .input_blend
-            .and_then(|b| b.params(scales.noise_level, &self.recipe.schedule));
-        let (mut out, learned) = match &blend_params {
-            None => self.filtered_rows(win, stems, scales, rows.clone()),
-            Some(p) => {
-                // the blend's boxes read the result `radius` rows beyond `rows`
-                let h = win.centre().color.height();
-                let wide = rows.start.saturating_sub(p.radius)..(rows.end + p.radius).min(h);
-                let (filtered, learned) = self.filtered_rows(win, stems, scales, wide.clone());
-                let inside = rows.start - wide.start..rows.end - wide.start;
-                let learned = learned.map(|w| w.rows(inside.clone()));
-                let blended = timed(Stage::InputBlend, || {
-                    let input = centre_values(win, wide.clone());
-                    let var = window_noise_variance(win, wide.clone());
-                    let weight = blend_weight(
-                        &input.select_channels(0, 3),
-                        &filtered.select_channels(0, 3),
-                        &var,
-                        p,
-                    );
-                    blend(&input, &filtered, &weight).rows(inside)
-                });
-                (blended, learned)
-            }
-        };
-        let c = win.centre();
-        let aov_ch: Vec<usize> = c.aovs.iter().map(|a| a.channels()).collect();
-        let mix = self.recipe.guide_mix;
-        let mixes = mix.weight > 0.0 || mix.outliers.is_some() || learned.is_some();
-        if let (Some(guide), true) = (&c.guide, mixes) {
-            timed(Stage::GuideMix, || {
-                let rgb_groups: Vec<usize> = aov_ch
-                    .iter()
-                    .scan(3, |at, &n| {
-                        let start = *at;
-                        *at += n;
-                        Some((n == 3).then_some(start))
-                    })
-                    .flatten()
-                    .collect();
-                let g = if let Some(range) = self.guide_mix_range_for(scales.noise_level) {
-                    guide_mix::window_guide(win, rows.clone(), range)
-                } else {
-                    guide.rows(rows.clone())
-                };
-                let weight = match &learned {
-                    Some(w) => guide_mix::MixWeight::PerPixel(w.channel(0)),
-                    None => guide_mix::MixWeight::Uniform(mix.weight),
-                };
-                guide_mix::mix_with_guide(&mut out, &g, weight, mix.outliers, &rgb_groups)
-            });
-        }
-        let has_alpha = c.alpha.is_some();
-        let color = out.select_channels(0, 3);
-        let mut at = 3;
-        let aovs = aov_ch
-            .iter()
-            .map(|&n| {
-                let p = out.select_channels(at, n);
-                at += n;
-                p
-            })
-            .collect();
-        let alpha = has_alpha.then(|| out.select_channels(at, 1));
-        Denoised { color, alpha, aovs }
+        let chain = self.post_chain(scales.noise_level);
+        let h = win.centre().color.height();
+        let m = chain.margin();
+        let read = rows.start.saturating_sub(m)..(rows.end + m).min(h);
+        let signals = Signals::of(win);
+        let (kernels, learned) = self.filtered_rows(win, stems, scales, read.clone());
+        signals.split(&chain.run(win, &signals, kernels, read, rows, learned))
     }
 
     /// The kernels' result for rows `rows` of an aligned window, every signal stacked along
@@ -109,16 +126,10 @@ impl NetworkDenoiser {
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> (Plane, Option<Plane>) {
-        let c = win.centre();
         let t = win.frames.len();
         // every signal stacked along channels: colour, AOVs, alpha
-        let mut chans = 3;
-        let aov_ch: Vec<usize> = c.aovs.iter().map(|a| a.channels()).collect();
-        chans += aov_ch.iter().sum::<usize>();
-        let has_alpha = c.alpha.is_some();
-        if has_alpha {
-            chans += 1;
-        }
+        let signals = Signals::of(win);
+        let chans = signals.channels();
         // the window's values (colour, AOVs, alpha of every frame) for one tile's region
         let values = |r: Region| {
             let mut v = Vec::with_capacity(t * chans * r.pixels());
@@ -134,14 +145,7 @@ impl NetworkDenoiser {
             v
         };
         // colour and every RGB AOV are demodulated by albedo when the model asks for it
-        let mut rgb = vec![0];
-        let mut at = 3;
-        for &n in &aov_ch {
-            if n == 3 {
-                rgb.push(at);
-            }
-            at += n;
-        }
+        let rgb = signals.rgb_groups();
         let eps = self.denoiser.config.demodulate;
         let inputs = &self.denoiser.config.inputs;
         let learned = self.recipe.guide_mix.learned && self.denoiser.config.guide_mix_head;
@@ -193,14 +197,4 @@ impl NetworkDenoiser {
             (out, None)
         }
     }
-}
-
-/// The centre frame's signals at rows `rows`, stacked as [`NetworkDenoiser`] filters them:
-/// colour, then each AOV, then alpha.
-fn centre_values(win: &AlignedWindow, rows: Range<usize>) -> Plane {
-    let c = win.centre();
-    let mut planes = vec![c.color.rows(rows.clone())];
-    planes.extend(c.aovs.iter().map(|a| a.rows(rows.clone())));
-    planes.extend(c.alpha.iter().map(|a| a.rows(rows.clone())));
-    Plane::concat(&planes.iter().collect::<Vec<_>>())
 }

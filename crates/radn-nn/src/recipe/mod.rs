@@ -75,7 +75,7 @@ pub struct GuideMixRecipe {
     pub learned: bool,
 }
 
-/// The temporal pass over the results ([`radn_core::stabilize::TemporalStabilizer`]).
+/// The temporal pass over the results ([`radn_core::post::stabilize::TemporalStabilizer`]).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct StabilizeRecipe {
@@ -89,8 +89,12 @@ pub struct StabilizeRecipe {
 
 impl StabilizeRecipe {
     /// The pass these settings describe.
-    pub fn stabilizer(&self) -> radn_core::stabilize::TemporalStabilizer {
-        radn_core::stabilize::TemporalStabilizer::new(self.strength, self.floor, self.noise_radius)
+    pub fn stabilizer(&self) -> radn_core::post::stabilize::TemporalStabilizer {
+        radn_core::post::stabilize::TemporalStabilizer::new(
+            self.strength,
+            self.floor,
+            self.noise_radius,
+        )
     }
 }
 

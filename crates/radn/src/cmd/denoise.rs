@@ -50,78 +50,104 @@ impl Precision {
 #[derive(clap::Args)]
 #[command(next_help_heading = "Input and output")]
 pub struct Args {
-    /// Input sequence: beauty.####.exr, beauty.%04d.exr, beauty.$F4.exr, or a folder.
-    #[arg(short, long, required_unless_present = "tune")]
+    /// Input: beauty.####.exr (or %04d, $F4), or a folder.
+    #[arg(short, long, value_name = "PATTERN", required_unless_present = "tune")]
     pub input: Option<String>,
-    /// Output pattern (same syntax); every layer of the input is kept.
-    #[arg(short, long, required_unless_present = "tune")]
+    /// Output pattern; every layer of the input is kept.
+    #[arg(short, long, value_name = "PATTERN", required_unless_present = "tune")]
     pub output: Option<String>,
-    /// Frames to write: FIRST-LAST[xSTEP] (default: every frame found).
-    #[arg(long)]
+    /// Frames to write, FIRST-LAST[xSTEP] (default: all).
+    #[arg(long, value_name = "RANGE")]
     pub frames: Option<String>,
-    /// Extra layers to denoise with the beauty's weights, e.g. DiffCol,GlossCol.
-    #[arg(long, value_delimiter = ',')]
+    /// Extra layers denoised with the beauty's weights.
+    #[arg(long, value_delimiter = ',', value_name = "A,B")]
     pub aovs: Vec<String>,
-    /// Recompute frames whose output exists (default: skip them, so a killed run resumes).
+    /// Recompute existing outputs (default: skip, to resume).
     #[arg(long)]
     pub overwrite: bool,
-    /// Storage of the denoised channels.
-    #[arg(long, value_enum, default_value = "same")]
+    /// Storage of denoised channels: same, half, float.
+    #[arg(
+        long,
+        value_enum,
+        default_value = "same",
+        value_name = "KIND",
+        hide_possible_values = true
+    )]
     pub output_precision: Precision,
     #[command(flatten)]
     pub channels: ChannelArgs,
 
-    /// The method: the network, or the non-neural classic denoiser.
-    #[arg(long, value_enum, default_value = "network", help_heading = "Quality")]
-    pub method: Method,
-    /// Per-frame guide: auto (OIDN if found), none, oidn, denoised, or a LAYER.
+    /// network, or classic (non-neural).
     #[arg(
         long,
-        value_name = "auto|none|oidn|denoised|LAYER",
+        value_enum,
+        default_value = "network",
+        value_name = "METHOD",
+        hide_possible_values = true,
+        help_heading = "Quality"
+    )]
+    pub method: Method,
+    /// auto (OIDN if found), none, oidn, denoised, LAYER.
+    #[arg(
+        long,
+        value_name = "GUIDE",
         default_value = "auto",
         help_heading = "Quality"
     )]
     pub guide: GuideRequest,
-    /// A model file instead of the built-in models.
-    #[arg(long, help_heading = "Quality")]
+    /// A model file instead of the built-in ones.
+    #[arg(long, value_name = "FILE", help_heading = "Quality")]
     pub model: Option<PathBuf>,
-    /// 1: as tuned; lower keeps more of the input, higher removes more.
-    #[arg(long, default_value_t = 1.0, value_parser = parse_strength, help_heading = "Quality")]
-    pub strength: f32,
-    /// Network passes over its own output (each widens the temporal reach).
-    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..),
+    /// 1: as tuned; lower keeps more of the input.
+    #[arg(long, default_value_t = 1.0, value_parser = parse_strength, value_name = "S",
           help_heading = "Quality")]
+    pub strength: f32,
+    /// Network passes (more widen the temporal reach).
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..),
+          value_name = "N", help_heading = "Quality")]
     pub passes: u32,
 
-    /// Where the network runs: cpu or cuda[:N] (a CUDA build).
+    /// Where the network runs: cpu or cuda[:N].
     #[arg(
         long,
         default_value = "cpu",
-        value_name = "cpu|cuda[:N]",
+        value_name = "DEVICE",
         help_heading = "Performance"
     )]
     pub device: ComputeDevice,
-    /// Output tile in pixels (off: whole frames); the result does not depend on it.
+    /// auto, off (whole frames) or pixels.
     #[arg(
         long,
-        value_name = "auto|off|N",
+        value_name = "SIZE",
         default_value = "auto",
         help_heading = "Performance"
     )]
     pub tile: Setting<usize>,
-    /// Band by band (memory follows the width): auto above 2.5 megapixels.
-    #[arg(long, value_enum, default_value = "auto", help_heading = "Performance")]
+    /// auto, always, never: memory follows the width.
+    #[arg(
+        long,
+        value_enum,
+        default_value = "auto",
+        value_name = "WHEN",
+        hide_possible_values = true,
+        help_heading = "Performance"
+    )]
     pub bands: crate::input::BandsArg,
-    /// Tiles per network call (1 is fastest on a CPU).
+    /// Tiles per network call.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..),
-          help_heading = "Performance")]
+          value_name = "N", help_heading = "Performance")]
     pub batch: u32,
-    /// Threads for Intel Open Image Denoise (0: every core).
-    #[arg(long, default_value_t = 0, help_heading = "Performance")]
+    /// OIDN's threads (0: every core).
+    #[arg(
+        long,
+        default_value_t = 0,
+        value_name = "N",
+        help_heading = "Performance"
+    )]
     pub oidn_threads: usize,
 
-    /// Override one tuned setting (repeatable); `--tune help` lists keys and values.
-    #[arg(long, value_name = "KEY=VALUE|help", help_heading = "Advanced")]
+    /// Override a tuned setting (--tune help lists them).
+    #[arg(long, value_name = "KEY=VALUE", help_heading = "Advanced")]
     pub tune: Vec<String>,
 }
 
