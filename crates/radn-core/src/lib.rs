@@ -1,54 +1,44 @@
-//! radn-core: everything in radn that has no network in it, in the order of the data path.
+//! radn-core: everything in radn that has no network in it, grouped by stage in the order of
+//! the data path.
 //!
-//! - EXR files in and out: [`exr_file`], [`frame`], [`mapping`], [`sequence`], inputs checked
-//!   and repaired ([`hygiene`]), safe outputs ([`output`]: atomic writes, PNG; [`output_locks`]: runs sharing a
-//!   folder, debris of killed runs), denoised
-//!   frames written into copies of their inputs ([`denoised_output`]).
-//! - Windows: read ([`window`]) and aligned onto their centre frame with per-pixel confidence
-//!   ([`motion`], [`warp`], [`confidence`], [`align`]), whole or band by band ([`banding`]).
-//! - Guides for guided networks: the renderer's denoised layer or Intel Open Image Denoise
-//!   per frame ([`guide`]).
-//! - Denoising: the contract every method implements ([`denoiser`]), the classic denoiser
-//!   ([`classic`]), whole sequences ([`job`]; band by band, decoded frames and per-frame
-//!   features kept on disk between a frame's windows: [`row_store`]) and runs of several
-//!   passes ([`passes`]).
-//! - Judging results: [`metrics`], sequence evaluation ([`evaluation`]), metrics with the
-//!   reference's own noise taken out ([`reference_noise`]) and the HTML report ([`report`]);
-//!   throughput of the data path ([`mod@bench`]).
+//! - [`io`]: EXR files in and out, frames and their channel presets, frame patterns, NaN/Inf
+//!   repair, atomic writes, runs sharing a folder, results written into copies of the inputs.
+//! - [`image`]: image planes, the operations on them, a frame's noise level.
+//! - [`guide`]: per-frame guides for guided networks (Intel Open Image Denoise at run time, the
+//!   renderer's denoised layer).
+//! - [`align`]: windows aligned onto their centre frame with per-pixel confidence.
+//! - [`run`]: the method contract, windows read from disk, bands, sequence jobs, several passes.
+//! - [`classic`]: the non-neural denoiser.
+//! - [`post`]: stages after a denoiser that both methods use (the Wiener blend, the temporal
+//!   pass over the results).
+//! - [`eval`]: metrics, sequence evaluation, the HTML report, throughput.
+//! - [`setting`]: the `auto|off|VALUE` parser every setting shares.
+//!
+//! The types callers use most are re-exported here.
 
 #![deny(missing_docs)]
 
 pub mod align;
-pub mod banding;
-pub mod bench;
 pub mod classic;
-pub mod confidence;
-pub mod denoised_output;
-pub mod denoiser;
 pub mod error;
-pub mod evaluation;
-pub mod exr_file;
-pub mod frame;
+pub mod eval;
 pub mod guide;
-pub mod hygiene;
-pub mod image_ops;
-pub mod job;
-pub mod mapping;
-pub mod metrics;
-pub mod motion;
-pub mod noise_level;
-pub mod output;
-pub mod output_locks;
-pub mod passes;
-pub mod plane;
+pub mod image;
+pub mod io;
 pub mod post;
-pub mod reference_noise;
-pub mod report;
-pub mod row_store;
-pub mod sequence;
+pub mod run;
 pub mod setting;
-pub mod warp;
-pub mod window;
 
+pub use align::{align_window, AlignParams, AlignedWindow};
+pub use classic::pipeline::ClassicDenoiser;
 pub use error::{Error, Result};
-pub use plane::Plane;
+pub use guide::{GuideChoice, OidnGuides};
+pub use image::plane::Plane;
+pub use io::exr_file::{ExrFile, SampleKind};
+pub use io::frame::{Frame, FrameReader};
+pub use io::mapping::ChannelMapping;
+pub use io::sequence::SequencePattern;
+pub use post::stabilize::TemporalStabilizer;
+pub use run::denoiser::{Denoised, WindowDenoiser};
+pub use run::passes::DenoiseRun;
+pub use setting::Setting;

@@ -6,9 +6,9 @@ use std::path::PathBuf;
 
 use radn_core::align::window_indices;
 use radn_core::classic::pipeline::{denoise_window, refine_frame_motion, ClassicParams};
-use radn_core::frame::{Frame, FrameReader, Requirements};
-use radn_core::mapping::ChannelMapping;
-use radn_core::metrics::{psnr, temporal};
+use radn_core::eval::metrics::{psnr, temporal};
+use radn_core::io::frame::{Frame, FrameReader, Requirements};
+use radn_core::io::mapping::ChannelMapping;
 use radn_core::Plane;
 
 const FRAMES: std::ops::RangeInclusive<i64> = 1..=9;

@@ -7,9 +7,9 @@
 
 use std::path::PathBuf;
 
-use radn_core::exr_file::ExrFile;
-use radn_core::frame::{FrameReader, GuideLayer, Requirements};
-use radn_core::mapping::ChannelMapping;
+use radn_core::io::exr_file::ExrFile;
+use radn_core::io::frame::{FrameReader, GuideLayer, Requirements};
+use radn_core::io::mapping::ChannelMapping;
 use radn_core::Error;
 
 fn denoised_sample(frame: i64) -> PathBuf {

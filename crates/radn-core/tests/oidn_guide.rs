@@ -8,10 +8,10 @@
 use std::path::PathBuf;
 use std::process::Command;
 
-use radn_core::frame::{FrameReader, Requirements};
+use radn_core::eval::metrics::psnr;
 use radn_core::guide::OidnGuides;
-use radn_core::mapping::ChannelMapping;
-use radn_core::metrics::psnr;
+use radn_core::io::frame::{FrameReader, Requirements};
+use radn_core::io::mapping::ChannelMapping;
 
 fn sample(level: &str, frame: i64) -> PathBuf {
     PathBuf::from(format!(

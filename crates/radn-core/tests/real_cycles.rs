@@ -5,12 +5,12 @@
 use std::path::PathBuf;
 
 use radn_core::align::{align_window, AlignParams};
-use radn_core::banding::{FrameStats, STATS_ROWS};
-use radn_core::exr_file::{ExrFile, SampleKind};
-use radn_core::frame::{Frame, FrameReader, Requirements};
-use radn_core::mapping::ChannelMapping;
-use radn_core::metrics::{mse, tonemap_plane};
-use radn_core::noise_level::NoiseLevelHistogram;
+use radn_core::eval::metrics::{mse, tonemap_plane};
+use radn_core::image::noise_level::NoiseLevelHistogram;
+use radn_core::io::exr_file::{ExrFile, SampleKind};
+use radn_core::io::frame::{Frame, FrameReader, Requirements};
+use radn_core::io::mapping::ChannelMapping;
+use radn_core::run::banding::{FrameStats, STATS_ROWS};
 
 fn sample(level: &str, frame: i64) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!(

@@ -2,12 +2,12 @@
 //! background. Warped side frames must match the centre frame within 1e-3 wherever the surface
 //! is visible in both, and confidence must be ~0 exactly where it is not.
 
+use radn_core::align::warp::Resampling;
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
-use radn_core::banding::{
+use radn_core::io::frame::Frame;
+use radn_core::run::banding::{
     frame_bands, hop_reach, window_band_rows, MotionReach, ALIGNMENT_EDGE_ROWS,
 };
-use radn_core::frame::Frame;
-use radn_core::warp::Resampling;
 use radn_core::Plane;
 
 const W: usize = 96;
@@ -340,7 +340,7 @@ fn a_centre_firefly_stays_in_the_centre_frame() {
         for (k, share) in [0.3f32, 0.7].iter().enumerate() {
             let mut plane = f.color.clone();
             plane.data_mut().iter_mut().for_each(|v| *v *= share);
-            f.aovs.push(radn_core::frame::Aov {
+            f.aovs.push(radn_core::io::frame::Aov {
                 name: format!("part{k}"),
                 channels: ["R", "G", "B"].map(|c| format!("part{k}.{c}")).to_vec(),
                 plane,

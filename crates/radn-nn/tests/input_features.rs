@@ -6,8 +6,8 @@ use std::path::PathBuf;
 
 use burn::tensor::Device;
 use radn_core::align::{align_window, AlignParams, AlignedWindow};
-use radn_core::frame::{Frame, FrameReader, Requirements};
-use radn_core::mapping::ChannelMapping;
+use radn_core::io::frame::{Frame, FrameReader, Requirements};
+use radn_core::io::mapping::ChannelMapping;
 use radn_nn::infer::input::{network_input, FeatureScales, Region};
 use radn_nn::infer::NetworkDenoiser;
 use radn_nn::model::config::{InputConfig, INPUT_CHANNELS};

@@ -520,7 +520,7 @@ fn tiles_aligned_with_the_guide_term_record_it_and_trust_side_frames_less() {
 #[test]
 fn guided_tiles_hold_each_renders_own_oidn_guide() {
     use half::f16;
-    use radn_core::frame::{FrameReader, Requirements};
+    use radn_core::io::frame::{FrameReader, Requirements};
     let Some(d) = guided_tile_sets() else { return };
     let ds = TileDataset::open(&d.path().join("train")).unwrap();
     assert_eq!(ds.manifest.guide.as_deref(), Some("oidn"));
@@ -529,7 +529,7 @@ fn guided_tiles_hold_each_renders_own_oidn_guide() {
     let tile = ds.get(4).unwrap();
     let (s, n) = (32usize, 32 * 32);
     let reader = FrameReader::new(
-        radn_core::mapping::ChannelMapping::builtin("cycles").unwrap(),
+        radn_core::io::mapping::ChannelMapping::builtin("cycles").unwrap(),
         Requirements::DENOISE,
     );
     let oidn = radn_core::guide::OidnGuides::new(2).unwrap();
@@ -684,7 +684,7 @@ fn tiles_aligned_with_loosened_sampled_terms_record_it_and_trust_side_frames_mor
 
 #[test]
 fn tiles_record_their_resampling_and_a_network_trains_only_on_tiles_aligned_its_way() {
-    use radn_core::warp::Resampling;
+    use radn_core::align::warp::Resampling;
     let d = tempfile::tempdir().unwrap();
     let set = |name: &str, seed: u64, resampling: Resampling| {
         let opts = PrepareOptions {

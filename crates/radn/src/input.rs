@@ -6,11 +6,11 @@ use std::path::PathBuf;
 use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
-use radn_core::exr_file::ExrFile;
-use radn_core::frame::{FrameReader, Requirements};
 use radn_core::guide::{GuideChoice, OidnGuides};
-use radn_core::hygiene::NonFinitePolicy;
-use radn_core::mapping::ChannelMapping;
+use radn_core::io::exr_file::ExrFile;
+use radn_core::io::frame::{FrameReader, Requirements};
+use radn_core::io::hygiene::NonFinitePolicy;
+use radn_core::io::mapping::ChannelMapping;
 
 /// How to find the buffers radn needs in the input files.
 #[derive(clap::Args, Clone, Debug)]
@@ -97,7 +97,7 @@ pub struct GuideArgs {
 }
 
 impl GuideArgs {
-    /// What a [`radn_core::window::WindowReader`] over `paths` needs to attach guides the
+    /// What a [`radn_core::run::window::WindowReader`] over `paths` needs to attach guides the
     /// reader does not read: the OIDN guides `oidn` of those files.
     pub fn window_guides(
         oidn: Option<Arc<OidnGuides>>,
@@ -117,7 +117,7 @@ fn parse_guide(s: &str) -> Result<GuideChoice, String> {
     Ok(GuideChoice::parse(s))
 }
 
-/// A resampling as the command line names it ([`radn_core::warp::Resampling`]).
+/// A resampling as the command line names it ([`radn_core::align::warp::Resampling`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum ResamplingArg {
     /// The four nearest pixels.
@@ -126,7 +126,7 @@ pub enum ResamplingArg {
     CatmullRom,
 }
 
-impl From<ResamplingArg> for radn_core::warp::Resampling {
+impl From<ResamplingArg> for radn_core::align::warp::Resampling {
     fn from(r: ResamplingArg) -> Self {
         match r {
             ResamplingArg::Bilinear => Self::Bilinear,
@@ -136,7 +136,7 @@ impl From<ResamplingArg> for radn_core::warp::Resampling {
 }
 
 /// When frames are denoised band by band, as the command line names it
-/// ([`radn_core::job::Bands`]).
+/// ([`radn_core::run::job::Bands`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
 pub enum BandsArg {
     /// Band by band for frames of more than 2.5 megapixels, whole frames for smaller ones.
@@ -147,7 +147,7 @@ pub enum BandsArg {
     Never,
 }
 
-impl From<BandsArg> for radn_core::job::Bands {
+impl From<BandsArg> for radn_core::run::job::Bands {
     fn from(b: BandsArg) -> Self {
         match b {
             BandsArg::Auto => Self::Auto,

@@ -1,6 +1,9 @@
 //! `radn`: temporal Monte Carlo denoising of rendered EXR sequences.
 
 #![deny(missing_docs)]
+// the arguments' doc comments are their help texts, where brackets are syntax (cuda[:N]),
+// not links
+#![allow(rustdoc::broken_intra_doc_links)]
 
 mod cmd;
 mod input;

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_core::io::exr_file::{ExrFile, SampleKind};
 
 const W: usize = 32;
 const H: usize = 24;

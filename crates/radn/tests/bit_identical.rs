@@ -13,7 +13,7 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use common::{radn_ok, sample, with_aovs};
-use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_core::io::exr_file::{ExrFile, SampleKind};
 
 /// 64-bit FNV-1a: a hash whose value is fixed by its definition, so stored hashes stay valid
 /// across Rust releases (std's `DefaultHasher` makes no such promise).

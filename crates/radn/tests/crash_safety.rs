@@ -41,7 +41,7 @@ fn denoise_cmd(out: &Path) -> Command {
 type Pixels = Vec<(String, Vec<u32>)>;
 
 fn pixels(path: &Path) -> Pixels {
-    let f = radn_core::exr_file::ExrFile::read(path)
+    let f = radn_core::io::exr_file::ExrFile::read(path)
         .unwrap_or_else(|e| panic!("{} is not a whole EXR: {e}", path.display()));
     f.channel_names()
         .into_iter()
@@ -92,7 +92,7 @@ fn listing(dir: &Path) -> Vec<String> {
 }
 
 fn is_radn_temporary(name: &str) -> bool {
-    radn_core::output_locks::is_radn_temporary(name)
+    radn_core::io::output_locks::is_radn_temporary(name)
 }
 
 /// Asserts that `dir` holds only outputs identical to the uninterrupted run's and radn's own

@@ -6,8 +6,8 @@
 mod common;
 
 use common::{beauty_rgb, radn_ok, sample};
-use radn_core::exr_file::ExrFile;
-use radn_core::metrics::psnr;
+use radn_core::eval::metrics::psnr;
+use radn_core::io::exr_file::ExrFile;
 
 fn rgb(path: &std::path::Path) -> radn_core::Plane {
     beauty_rgb(&ExrFile::read(path).unwrap())

@@ -3,8 +3,8 @@
 mod common;
 
 use common::{assert_aovs_sum_to_beauty, beauty_rgb as rgb, radn, sample, with_aovs};
-use radn_core::exr_file::ExrFile;
-use radn_core::metrics::psnr;
+use radn_core::eval::metrics::psnr;
+use radn_core::io::exr_file::ExrFile;
 
 #[test]
 fn denoises_keeps_other_channels_and_resumes() {

@@ -11,7 +11,7 @@ use std::path::{Path, PathBuf};
 use std::process::Command;
 
 use common::{assert_aovs_sum_to_beauty, level_with_aovs, oidn_or_skip, radn, radn_ok, sample};
-use radn_core::exr_file::ExrFile;
+use radn_core::io::exr_file::ExrFile;
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::config::InputConfig;
 use radn_nn::{Denoiser, NetConfig};
@@ -402,7 +402,7 @@ fn a_frame_missing_its_guide_layer_is_named_and_nothing_is_written_half() {
                 file.width(),
                 file.height(),
                 channels,
-                radn_core::exr_file::SampleKind::F32,
+                radn_core::io::exr_file::SampleKind::F32,
             )
             .write_atomic(&to)
             .unwrap();

@@ -6,7 +6,7 @@ mod common;
 use std::path::{Path, PathBuf};
 
 use common::{assert_aovs_sum_to_beauty, beauty_rgb, radn, radn_ok, sample, with_aovs};
-use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_core::io::exr_file::{ExrFile, SampleKind};
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::config::InputConfig;
 use radn_nn::{Denoiser, NetConfig};

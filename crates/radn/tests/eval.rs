@@ -6,7 +6,7 @@ use std::path::Path;
 
 use common::{radn, radn_ok, sample};
 
-use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_core::io::exr_file::{ExrFile, SampleKind};
 
 fn write_seq(dir: &Path, frames: &[i64], value: impl Fn(i64, usize) -> f32) {
     std::fs::create_dir_all(dir).unwrap();

@@ -7,7 +7,7 @@ mod common;
 use std::path::Path;
 
 use common::{radn_ok, sample};
-use radn_core::exr_file::ExrFile;
+use radn_core::io::exr_file::ExrFile;
 
 /// Runs `radn denoise` on the sample's 4-spp frames into `dir/name/`, returns the stdout.
 fn denoise(dir: &Path, name: &str, extra: &[&str]) -> String {

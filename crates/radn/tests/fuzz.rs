@@ -236,15 +236,15 @@ fn sequence_with(dir: &Path, bytes: &[u8]) -> PathBuf {
 fn frame_case(dir: &Path, bytes: &[u8], denoise: bool) -> Result<bool, String> {
     let p = sequence_with(dir, bytes);
     let read = read_check(&p, "ExrFile::read", |q| {
-        radn_core::exr_file::ExrFile::read(q)
+        radn_core::io::exr_file::ExrFile::read(q)
             .map(|_| ())
             .map_err(|e| e.to_string())
     })?;
     read_check(&p, "FrameReader::read", |q| {
-        let mapping = radn_core::mapping::ChannelMapping::builtin("cycles").unwrap();
-        let reader = radn_core::frame::FrameReader::new(
+        let mapping = radn_core::io::mapping::ChannelMapping::builtin("cycles").unwrap();
+        let reader = radn_core::io::frame::FrameReader::new(
             mapping,
-            radn_core::frame::Requirements {
+            radn_core::io::frame::Requirements {
                 albedo: true,
                 normal: true,
                 depth: false,
@@ -289,7 +289,7 @@ fn frame_case(dir: &Path, bytes: &[u8], denoise: bool) -> Result<bool, String> {
         )?;
         if ok {
             let res = out.join("frame_0003.exr");
-            radn_core::exr_file::ExrFile::read(&res)
+            radn_core::io::exr_file::ExrFile::read(&res)
                 .map_err(|e| format!("denoise succeeded, its output does not read back: {e}"))?;
         }
     }
@@ -346,7 +346,7 @@ fn mapping_case(dir: &Path, bytes: &[u8]) -> Result<bool, String> {
     let p = dir.join("mutated.toml");
     std::fs::write(&p, bytes).unwrap();
     let parses = read_check(&p, "ChannelMapping::from_file", |q| {
-        radn_core::mapping::ChannelMapping::from_file(q)
+        radn_core::io::mapping::ChannelMapping::from_file(q)
             .map(|_| ())
             .map_err(|e| e.to_string())
     })?;

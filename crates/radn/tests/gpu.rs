@@ -5,7 +5,7 @@
 mod common;
 
 use common::{radn_ok, sample};
-use radn_core::exr_file::ExrFile;
+use radn_core::io::exr_file::ExrFile;
 use radn_nn::device::ComputeDevice;
 
 /// The GPU, or `None` after saying why the test is skipped.

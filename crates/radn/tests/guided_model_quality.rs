@@ -10,10 +10,10 @@
 mod common;
 
 use common::{beauty_rgb, oidn_or_skip, radn_ok, sample};
-use radn_core::exr_file::ExrFile;
-use radn_core::frame::{FrameReader, Requirements};
-use radn_core::mapping::ChannelMapping;
-use radn_core::metrics::{psnr, temporal};
+use radn_core::eval::metrics::{psnr, temporal};
+use radn_core::io::exr_file::ExrFile;
+use radn_core::io::frame::{FrameReader, Requirements};
+use radn_core::io::mapping::ChannelMapping;
 use radn_core::Plane;
 
 const FRAMES: std::ops::RangeInclusive<i64> = 3..=7;

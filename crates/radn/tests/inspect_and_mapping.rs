@@ -2,7 +2,7 @@
 
 use std::process::Command;
 
-use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_core::io::exr_file::{ExrFile, SampleKind};
 
 #[test]
 fn inspect_reports_channels_statistics_and_nonfinite_counts() {

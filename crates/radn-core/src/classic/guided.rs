@@ -4,8 +4,8 @@
 
 use rayon::prelude::*;
 
-use crate::image_ops::box_mean;
-use crate::plane::Plane;
+use crate::image::ops::box_mean;
+use crate::image::plane::Plane;
 
 /// Guided filter options.
 #[derive(Clone, Copy, Debug)]

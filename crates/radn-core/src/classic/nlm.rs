@@ -5,8 +5,8 @@
 
 use rayon::prelude::*;
 
-use crate::image_ops::box_sum_into;
-use crate::plane::Plane;
+use crate::image::ops::box_sum_into;
+use crate::image::plane::Plane;
 
 /// NLM options.
 #[derive(Clone, Copy, Debug)]

@@ -9,12 +9,12 @@ use super::guided::{guided_filter, GuidedParams};
 use super::nlm::{nlm, NlmGuide, NlmParams};
 use super::refine::{refine_motion, RefineParams};
 use super::temporal::{apply_weights, robust_weights, temporal_variance};
+use crate::align::confidence::box3;
+use crate::align::motion::invert;
 use crate::align::{align_window, AlignParams};
-use crate::confidence::box3;
-use crate::frame::Frame;
-use crate::image_ops::box_mean;
-use crate::motion::invert;
-use crate::plane::Plane;
+use crate::image::ops::box_mean;
+use crate::image::plane::Plane;
+use crate::io::frame::Frame;
 use crate::post::wiener::{blend, blend_weight, local_variance, BlendParams};
 
 /// All options of the classic denoiser.
@@ -293,7 +293,7 @@ impl Default for ClassicDenoiser {
     }
 }
 
-impl crate::denoiser::WindowDenoiser for ClassicDenoiser {
+impl crate::run::denoiser::WindowDenoiser for ClassicDenoiser {
     fn radius(&self) -> usize {
         self.radius
     }
@@ -312,9 +312,9 @@ impl crate::denoiser::WindowDenoiser for ClassicDenoiser {
         }
     }
 
-    fn denoise(&self, window: &[Option<&Frame>]) -> crate::Result<crate::denoiser::Denoised> {
+    fn denoise(&self, window: &[Option<&Frame>]) -> crate::Result<crate::run::denoiser::Denoised> {
         let r = denoise_window(window, &self.params);
-        Ok(crate::denoiser::Denoised {
+        Ok(crate::run::denoiser::Denoised {
             color: r.color,
             alpha: r.alpha,
             aovs: r.aovs,

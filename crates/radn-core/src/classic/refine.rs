@@ -5,10 +5,10 @@
 use rayon::prelude::*;
 
 use super::tvl1::{tvl1_flow, TvL1Params};
-use crate::image_ops::{box_mean, downsample, gaussian, luminance, resample};
-use crate::metrics::tonemap;
-use crate::plane::Plane;
-use crate::warp::warp_plane;
+use crate::align::warp::warp_plane;
+use crate::eval::metrics::tonemap;
+use crate::image::ops::{box_mean, downsample, gaussian, luminance, resample};
+use crate::image::plane::Plane;
 
 /// Options of the refinement.
 #[derive(Clone, Copy, Debug)]

@@ -4,7 +4,7 @@
 use rayon::prelude::*;
 
 use crate::align::AlignedWindow;
-use crate::plane::Plane;
+use crate::image::plane::Plane;
 
 /// The robust average of paper eq. 1: mean without the minimum and the maximum (plain mean
 /// for fewer than three values).

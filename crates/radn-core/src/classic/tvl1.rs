@@ -5,9 +5,9 @@
 
 use rayon::prelude::*;
 
-use crate::image_ops::{downsample, gradient, median3, resample};
-use crate::motion::bilinear;
-use crate::plane::Plane;
+use crate::align::motion::bilinear;
+use crate::image::ops::{downsample, gradient, median3, resample};
+use crate::image::plane::Plane;
 
 /// TV-L1 parameters. Intensities are expected in [0, 255] (the usual scale of the method's
 /// published parameter values).

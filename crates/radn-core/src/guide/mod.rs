@@ -2,7 +2,7 @@
 //! noisy window (DESIGN.md §5). Kernels are still applied to the noisy frames, so AOVs, alpha
 //! and thresholds keep working; the guide only steers the weights.
 //!
-//! A guide is either a layer the renderer wrote ([`crate::frame::GuideLayer`], read with the
+//! A guide is either a layer the renderer wrote ([`crate::io::frame::GuideLayer`], read with the
 //! frame) or Intel Open Image Denoise run on each frame ([`OidnGuides`], computed once per
 //! frame from the sequence's original input files, whatever pass is running).
 
@@ -12,8 +12,8 @@ use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
 use crate::error::{Error, Result};
-use crate::frame::{Frame, FrameReader};
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::io::frame::{Frame, FrameReader};
 
 pub use oidn::{OidnDenoiser, OidnError};
 
@@ -48,8 +48,8 @@ impl GuideChoice {
     }
 
     /// The layer [`FrameReader`] reads as the guide (none for OIDN, which computes it).
-    pub fn layer(&self) -> crate::frame::GuideLayer {
-        use crate::frame::GuideLayer;
+    pub fn layer(&self) -> crate::io::frame::GuideLayer {
+        use crate::io::frame::GuideLayer;
         match self {
             Self::Denoised => GuideLayer::Denoised,
             Self::Layer(l) => GuideLayer::Layer(l.clone()),

@@ -18,7 +18,7 @@
 use std::ffi::{c_char, c_int, c_void, CStr, CString};
 use std::path::{Path, PathBuf};
 
-use crate::plane::Plane;
+use crate::image::plane::Plane;
 
 /// An OIDN device type: the CPU.
 const DEVICE_TYPE_CPU: c_int = 1;

@@ -28,14 +28,14 @@
 
 use rayon::prelude::*;
 
+use crate::align::warp::Resampling;
 use crate::align::{align_window, AlignParams, AlignedFrame};
-use crate::denoiser::{Denoised, WindowDenoiser};
 use crate::error::{Error, Result};
-use crate::frame::Frame;
-use crate::image_ops::{box_mean, luminance};
-use crate::metrics::{tonemap, tonemap_plane};
-use crate::plane::Plane;
-use crate::warp::Resampling;
+use crate::eval::metrics::{tonemap, tonemap_plane};
+use crate::image::ops::{box_mean, luminance};
+use crate::image::plane::Plane;
+use crate::io::frame::Frame;
+use crate::run::denoiser::{Denoised, WindowDenoiser};
 
 /// The temporal pass over results ([module docs](self)).
 #[derive(Clone, Debug)]
@@ -187,7 +187,7 @@ impl WindowDenoiser for TemporalStabilizer {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::Aov;
+    use crate::io::frame::Aov;
 
     const W: usize = 48;
     const H: usize = 32;

@@ -16,8 +16,8 @@ use std::ops::Range;
 
 use crate::align::AlignedWindow;
 use crate::classic::temporal::{apply_weights, temporal_variance};
-use crate::image_ops::box_mean;
-use crate::plane::Plane;
+use crate::image::ops::box_mean;
+use crate::image::plane::Plane;
 
 /// Options of the blend.
 #[derive(Clone, Copy, Debug)]

@@ -5,7 +5,7 @@ use burn::tensor::{Tensor, TensorData};
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
-use radn_core::frame::Frame;
+use radn_core::io::frame::Frame;
 use radn_core::Plane;
 
 use crate::infer::input::{network_input, FeatureScales, Region};

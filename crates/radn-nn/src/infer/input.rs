@@ -2,10 +2,10 @@
 //! linear values kernels are applied to.
 
 use radn_core::align::AlignedWindow;
-use radn_core::frame::{
+use radn_core::image::noise_level::NoiseLevelHistogram;
+use radn_core::io::frame::{
     add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, FAR_DEPTH,
 };
-use radn_core::noise_level::NoiseLevelHistogram;
 use rayon::prelude::*;
 
 use crate::model::config::{InputConfig, INPUT_CHANNELS};
@@ -68,7 +68,7 @@ pub struct FeatureScales {
     pub depth: f32,
     /// The centre frame's exposure: its log-average luminance (1 for a black frame).
     pub exposure: f32,
-    /// The centre frame's noise level ([`radn_core::noise_level`]; `None` for a black frame).
+    /// The centre frame's noise level ([`radn_core::image::noise_level`]; `None` for a black frame).
     pub noise_level: Option<f32>,
 }
 
@@ -97,8 +97,8 @@ impl FeatureScales {
     }
 
     /// The scales of a window whose centre frame's whole-frame statistics are `stats` (a
-    /// frame denoised band by band, [`radn_core::banding::FrameStats`]).
-    pub fn of_stats(stats: &radn_core::banding::FrameStats) -> Self {
+    /// frame denoised band by band, [`radn_core::run::banding::FrameStats`]).
+    pub fn of_stats(stats: &radn_core::run::banding::FrameStats) -> Self {
         Self {
             depth: stats.mean_depth(),
             exposure: stats.exposure(),

@@ -6,7 +6,7 @@
 //! input's sample count: at 4 spp any blend gives noise back, on clean frames K ≈ 2 is best. A
 //! per-pixel scale cannot tell a clean frame's dark pixels from a noisy frame's, so by default
 //! K is set once per frame from the frame's noise level by the recipe's
-//! [`NoiseSchedule`](crate::infer::schedule::NoiseSchedule).
+//! [`NoiseSchedule`].
 
 use std::ops::Range;
 

@@ -18,10 +18,10 @@ pub mod utilization;
 
 use burn::tensor::Device;
 
+use radn_core::align::warp::Resampling;
 use radn_core::align::{align_window, AlignParams, AlignedWindow};
-use radn_core::denoiser::Denoised;
-use radn_core::frame::Frame;
-use radn_core::warp::Resampling;
+use radn_core::io::frame::Frame;
+use radn_core::run::denoiser::Denoised;
 
 use crate::infer::input::FeatureScales;
 use crate::infer::schedule::NoiseSchedule;
@@ -51,7 +51,7 @@ pub struct NetworkDenoiser {
 }
 
 /// How many times the confidence terms that compare sampled buffers
-/// ([`radn_core::confidence::ConfidenceParams::loosened`]) loosen for a centre frame of noise
+/// ([`radn_core::align::confidence::ConfidenceParams::loosened`]) loosen for a centre frame of noise
 /// level `level`: the schedule's loosening (1 at the cleanest frames), at most `most`, and
 /// `most` for frames too noisy for the schedule or without a level.
 pub fn sampled_terms_loosening(level: Option<f32>, most: f32, schedule: &NoiseSchedule) -> f32 {
@@ -203,7 +203,7 @@ impl NetworkDenoiser {
 
     /// Denoises an aligned window: colour, then every AOV and alpha with the same kernels. A
     /// network with a frame-local stem runs it here on the aligned frames, as in training;
-    /// [`WindowDenoiser::denoise`] runs it on the frames as rendered and warps its features.
+    /// [`radn_core::run::denoiser::WindowDenoiser::denoise`] runs it on the frames as rendered and warps its features.
     pub fn denoise_aligned(&self, win: &AlignedWindow) -> Denoised {
         self.denoise_aligned_with(win, None)
     }

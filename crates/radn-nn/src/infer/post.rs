@@ -13,8 +13,8 @@ use burn::tensor::Tensor;
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
-use radn_core::denoiser::Denoised;
 use radn_core::post::wiener::BlendParams;
+use radn_core::run::denoiser::Denoised;
 use radn_core::Plane;
 
 use crate::infer::input::{FeatureScales, Region};

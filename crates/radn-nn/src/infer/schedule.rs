@@ -1,5 +1,5 @@
 //! The noise-level schedule: how settings tuned for the cleanest frames follow a frame's noise
-//! level ([`radn_core::noise_level`]). One object, given to every stage that follows the level
+//! level ([`radn_core::image::noise_level`]). One object, given to every stage that follows the level
 //! (the input blend, alignment's colour and sampled-buffer terms, the guide mix's range and its
 //! choice of guide), so that retuning it retunes them together and on purpose.
 //!

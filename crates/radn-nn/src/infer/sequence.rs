@@ -3,10 +3,10 @@
 use std::ops::Range;
 
 use radn_core::align::align_bands;
-use radn_core::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
-use radn_core::denoiser::{BandDenoiser, BandFeatures, Denoised, WindowDenoiser};
-use radn_core::frame::Frame;
+use radn_core::io::frame::Frame;
 use radn_core::post::wiener::LOCAL_VARIANCE_RADIUS;
+use radn_core::run::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
+use radn_core::run::denoiser::{BandDenoiser, BandFeatures, Denoised, WindowDenoiser};
 use radn_core::Plane;
 
 use crate::infer::input::FeatureScales;

@@ -6,7 +6,7 @@
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
-use radn_core::denoiser::Denoised;
+use radn_core::run::denoiser::Denoised;
 use radn_core::Plane;
 
 /// The channel layout of a window's signals.

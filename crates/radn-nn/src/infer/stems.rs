@@ -10,10 +10,10 @@ use std::borrow::Cow;
 use std::ops::Range;
 use std::sync::{Arc, Mutex};
 
+use radn_core::align::warp::{mix_with_centre, warp_bands, Resampling};
 use radn_core::align::AlignedWindow;
-use radn_core::banding::{Band, FrameBand};
-use radn_core::frame::Frame;
-use radn_core::warp::{mix_with_centre, warp_bands, Resampling};
+use radn_core::io::frame::Frame;
+use radn_core::run::banding::{Band, FrameBand};
 use radn_core::Plane;
 
 /// One side frame's features and the alignment that brings them onto the centre frame.

@@ -6,7 +6,7 @@ use crate::infer::tiles::batches;
 use crate::model::config::NetConfig;
 use burn::tensor::{Tensor, TensorData};
 use radn_core::align::AlignedFrame;
-use radn_core::denoiser::{BandDenoiser, WindowDenoiser};
+use radn_core::run::denoiser::{BandDenoiser, WindowDenoiser};
 use radn_core::Plane;
 
 /// A denoiser of `d` running its kernels alone: every stage of its recipe off.

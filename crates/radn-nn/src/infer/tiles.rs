@@ -5,7 +5,7 @@ use burn::tensor::{Tensor, TensorData};
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
-use radn_core::frame::Frame;
+use radn_core::io::frame::Frame;
 use radn_core::Plane;
 
 use crate::infer::input::{network_input, FeatureScales, Region};
@@ -26,7 +26,7 @@ impl NetworkDenoiser {
 
     /// [`NetworkDenoiser::utilization`] of the window of frames `window` (`None` beyond the
     /// sequence ends), aligned here, with the stem features warped as
-    /// [`WindowDenoiser::denoise`] warps them.
+    /// [`radn_core::run::denoiser::WindowDenoiser::denoise`] warps them.
     pub fn window_utilization(&self, window: &[Option<&Frame>]) -> Vec<Plane> {
         let (win, scales) = self.align_for_centre(window);
         let stems = self

@@ -2,7 +2,7 @@
 //! kernels use, per pixel ([`super::NetworkDenoiser::utilization`]) and summed up over the
 //! frames of a sequence ([`Utilization`]).
 
-use radn_core::output::{write_png, PngColor};
+use radn_core::io::output::{write_png, PngColor};
 use radn_core::Plane;
 
 /// Kernel-weight statistics of each window frame over the frames of a sequence: the mean and

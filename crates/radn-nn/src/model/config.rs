@@ -1,7 +1,7 @@
 //! Network configuration: plain TOML, the same format for built-in presets and user files,
 //! stored inside every model file so that the file alone is enough to run it.
 
-use radn_core::warp::Resampling;
+use radn_core::align::warp::Resampling;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
@@ -135,7 +135,7 @@ pub struct NetConfig {
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub frame_local_stem: bool,
     /// How alignment samples the side frames between pixels
-    /// ([`radn_core::warp::Resampling`]): the network learns from windows aligned this way
+    /// ([`radn_core::align::warp::Resampling`]): the network learns from windows aligned this way
     /// (`radn prepare --resampling`), and inference aligns the same way unless told otherwise.
     /// Absent: bilinear, as every model before it.
     #[serde(default, skip_serializing_if = "Resampling::is_bilinear")]

@@ -24,7 +24,7 @@ pub fn save(denoiser: &Denoiser, path: &Path) -> Result<()> {
         path: path.to_path_buf(),
         detail,
     };
-    radn_core::output::write_atomically_with(path, |_, tmp| {
+    radn_core::io::output::write_atomically_with(path, |_, tmp| {
         let mut store = SafetensorsStore::from_file(tmp)
             .metadata(CONFIG_KEY, denoiser.config.to_toml())
             .metadata(RECIPE_KEY, denoiser.recipe.to_toml())

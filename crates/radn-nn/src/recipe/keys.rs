@@ -1,8 +1,8 @@
 //! `--tune KEY=VALUE`: a recipe's fields by name, to override one without a flag of its own,
 //! and the list `radn denoise --tune help` prints with the values the model's recipe holds.
 
+use radn_core::align::warp::Resampling;
 use radn_core::setting::{Positive, Setting};
-use radn_core::warp::Resampling;
 
 use super::{Recipe, StabilizeRecipe};
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};

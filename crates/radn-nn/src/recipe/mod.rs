@@ -10,7 +10,7 @@ pub mod keys;
 
 use serde::{Deserialize, Serialize};
 
-use radn_core::warp::Resampling;
+use radn_core::align::warp::Resampling;
 
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};
 use crate::infer::input_blend::InputBlend;

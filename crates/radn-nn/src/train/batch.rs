@@ -26,7 +26,7 @@ pub struct Batch {
 
 /// Crops and stacks tiles with their chosen (input, target) levels, with the input features
 /// a network configured with `inputs` reads (tiles of format 2 when it asks for exposure
-/// normalisation: [`Trainer::new`] checks).
+/// normalisation: [`crate::train::trainer::Trainer::new`] checks).
 pub fn make_batch(
     tiles: &[(Tile, usize, usize, usize, usize)],
     frames: usize,

@@ -80,7 +80,12 @@ impl Canvas {
     }
 
     fn png(&self) -> Vec<u8> {
-        radn_core::output::encode_png(&self.px, self.w, self.h, radn_core::output::PngColor::Rgb)
+        radn_core::io::output::encode_png(
+            &self.px,
+            self.w,
+            self.h,
+            radn_core::io::output::PngColor::Rgb,
+        )
     }
 }
 
@@ -283,7 +288,7 @@ pub fn training_curves(csv: &Path, png_path: &Path) -> Result<()> {
         list.push(("log10 update / weight", &ratios));
     }
     let bytes = panels(&list);
-    radn_core::output::write_bytes_atomically(png_path, &bytes).map_err(NnError::from)
+    radn_core::io::output::write_bytes_atomically(png_path, &bytes).map_err(NnError::from)
 }
 
 #[cfg(test)]

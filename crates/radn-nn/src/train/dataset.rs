@@ -16,13 +16,13 @@ use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
 use std::path::{Path, PathBuf};
 
 use half::f16;
+use radn_core::align::warp::Resampling;
 use radn_core::align::{align_window, AlignParams};
-use radn_core::frame::{FrameReader, Requirements};
 use radn_core::guide::{GuideChoice, JobGuides, OidnGuides};
-use radn_core::mapping::ChannelMapping;
-use radn_core::sequence::{scene_folders, SequencePattern};
-use radn_core::warp::Resampling;
-use radn_core::window::WindowReader;
+use radn_core::io::frame::{FrameReader, Requirements};
+use radn_core::io::mapping::ChannelMapping;
+use radn_core::io::sequence::{scene_folders, SequencePattern};
+use radn_core::run::window::WindowReader;
 use serde::{Deserialize, Serialize};
 
 use crate::error::{NnError, Result};
@@ -68,7 +68,7 @@ pub struct PrepareOptions {
     pub guide: GuideChoice,
     /// Threads of Intel Open Image Denoise, for `guide` `oidn` (0: every core).
     pub oidn_threads: usize,
-    /// Alignment's guide term ([`radn_core::confidence::ConfidenceParams::guide`]) for the
+    /// Alignment's guide term ([`radn_core::align::confidence::ConfidenceParams::guide`]) for the
     /// stored windows, so a guided network can train on windows aligned as a guided
     /// model's recipe aligns them; `None`: the geometric terms alone.
     pub guide_confidence: Option<f32>,
@@ -376,7 +376,7 @@ pub fn prepare(
         loosen_sampled_terms: opts.loosen_sampled_terms,
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
-    radn_core::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;
+    radn_core::io::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;
     Ok(manifest)
 }
 
@@ -477,7 +477,7 @@ impl ShardWriter {
         debug_assert_eq!(record.len(), self.record_bytes);
         if self.count.is_multiple_of(RECORDS_PER_SHARD) {
             self.close_shard()?;
-            let tmp = radn_core::output::output_tempfile(&self.dir, ".radn-", ".bin.tmp")
+            let tmp = radn_core::io::output::output_tempfile(&self.dir, ".radn-", ".bin.tmp")
                 .map_err(|e| io_err(&self.dir, e))?;
             let f = tmp
                 .as_file()
@@ -512,7 +512,7 @@ impl ShardWriter {
 /// manifest and shards, so that until this run writes its manifest (last) the folder is not
 /// mistaken for a complete tile set.
 fn clear_tile_folder(out: &Path) -> Result<()> {
-    radn_core::output_locks::remove_stale(out)?;
+    radn_core::io::output_locks::remove_stale(out)?;
     let manifest = out.join("manifest.json");
     if manifest.exists() {
         std::fs::remove_file(&manifest).map_err(|e| io_err(&manifest, e))?;

@@ -25,7 +25,7 @@ pub use crate::train::config::TrainConfig;
 use crate::train::dataset::{SplitMix, TileDataset};
 use crate::train::layer_stats::{append_csv, gradient_norms, step_stats};
 use crate::train::objective::{objective, sample_pair, LossFn, PairRule, PixelLoss};
-use radn_core::output::{write_atomically_with, write_bytes_atomically};
+use radn_core::io::output::{write_atomically_with, write_bytes_atomically};
 
 /// Saved between steps so a run can resume.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -153,8 +153,8 @@ impl Trainer {
             detail: e.to_string(),
         })?;
         // temporary files of a run killed while writing (a live run's are locked)
-        radn_core::output_locks::remove_stale(out)?;
-        radn_core::output_locks::remove_stale(&out.join("steps"))?;
+        radn_core::io::output_locks::remove_stale(out)?;
+        radn_core::io::output_locks::remove_stale(&out.join("steps"))?;
         let net_cfg = config.net_config(base)?;
         if net_cfg.frames != train.manifest.frames {
             return Err(NnError::Config(format!(
@@ -453,7 +453,7 @@ impl Trainer {
                 .powf_scalar(2.0)
                 .mean()
                 .into_scalar::<f32>() as f64;
-            psnr += radn_core::metrics::psnr_from_mse(mse);
+            psnr += radn_core::eval::metrics::psnr_from_mse(mse);
         }
         Ok(Validation {
             loss: loss / n as f64,

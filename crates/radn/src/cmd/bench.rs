@@ -3,9 +3,9 @@
 use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
-use radn_core::bench::time_windows;
-use radn_core::frame::Requirements;
-use radn_core::sequence::sequence_files;
+use radn_core::eval::bench::time_windows;
+use radn_core::io::frame::Requirements;
+use radn_core::io::sequence::sequence_files;
 
 use crate::input::ChannelArgs;
 

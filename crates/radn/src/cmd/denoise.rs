@@ -4,10 +4,10 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, bail, Result};
 use radn_core::classic::pipeline::ClassicDenoiser;
-use radn_core::denoiser::WindowDenoiser;
-use radn_core::frame::Requirements;
-use radn_core::passes::DenoiseRun;
-use radn_core::sequence::{sequence_files, SequencePattern};
+use radn_core::io::frame::Requirements;
+use radn_core::io::sequence::{sequence_files, SequencePattern};
+use radn_core::run::denoiser::WindowDenoiser;
+use radn_core::run::passes::DenoiseRun;
 use radn_core::setting::Setting;
 use radn_nn::device::ComputeDevice;
 use radn_nn::infer::NetworkDenoiser;
@@ -37,11 +37,11 @@ pub enum Precision {
 
 impl Precision {
     /// The sample kind to force, if any.
-    pub fn kind(self) -> Option<radn_core::exr_file::SampleKind> {
+    pub fn kind(self) -> Option<radn_core::io::exr_file::SampleKind> {
         match self {
             Precision::Same => None,
-            Precision::Half => Some(radn_core::exr_file::SampleKind::F16),
-            Precision::Float => Some(radn_core::exr_file::SampleKind::F32),
+            Precision::Half => Some(radn_core::io::exr_file::SampleKind::F16),
+            Precision::Float => Some(radn_core::io::exr_file::SampleKind::F32),
         }
     }
 }

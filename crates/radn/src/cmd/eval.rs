@@ -4,14 +4,14 @@
 use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
-use radn_core::denoiser::WindowDenoiser;
-use radn_core::evaluation::{self, Evaluation};
-use radn_core::frame::Requirements;
-use radn_core::output::write_bytes_atomically;
-use radn_core::reference_noise::{self, NoiseFreeMetrics};
-use radn_core::report::{write_report, Shown};
-use radn_core::sequence::sequence_files;
-use radn_core::window::WindowReader;
+use radn_core::eval::evaluation::{self, Evaluation};
+use radn_core::eval::reference_noise::{self, NoiseFreeMetrics};
+use radn_core::eval::report::{write_report, Shown};
+use radn_core::io::frame::Requirements;
+use radn_core::io::output::write_bytes_atomically;
+use radn_core::io::sequence::sequence_files;
+use radn_core::run::denoiser::WindowDenoiser;
+use radn_core::run::window::WindowReader;
 use radn_core::Plane;
 use radn_nn::infer::utilization::{write_heatmap, Utilization};
 use rayon::prelude::*;
@@ -126,7 +126,10 @@ pub fn run(a: Args) -> Result<()> {
 
 /// The reader of reference files (like `first`): the result's channel options with
 /// `--reference-preset`.
-fn reference_reader(a: &Args, first: &std::path::Path) -> Result<radn_core::frame::FrameReader> {
+fn reference_reader(
+    a: &Args,
+    first: &std::path::Path,
+) -> Result<radn_core::io::frame::FrameReader> {
     let ref_args = ChannelArgs {
         preset: a.reference_preset.clone(),
         mapping: None,

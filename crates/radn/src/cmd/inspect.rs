@@ -3,8 +3,8 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use radn_core::exr_file::ExrFile;
-use radn_core::mapping::ChannelMapping;
+use radn_core::io::exr_file::ExrFile;
+use radn_core::io::mapping::ChannelMapping;
 
 /// Arguments of `radn inspect`.
 #[derive(clap::Args)]

@@ -54,7 +54,7 @@ pub struct Args {
 
 /// Cuts the tiles.
 pub fn run(a: Args) -> Result<()> {
-    let scenes = radn_core::sequence::scene_folders(&a.data, "high")?.len();
+    let scenes = radn_core::io::sequence::scene_folders(&a.data, "high")?.len();
     let pb = crate::progress::frames(scenes as u64, "scenes");
     // `auto` takes the values a model of this kind is tuned with: its recipe
     let recipe = radn_nn::Recipe::for_kind(a.guide.guide.is_some());

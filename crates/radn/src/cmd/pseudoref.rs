@@ -4,9 +4,9 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
-use radn_core::frame::Requirements;
-use radn_core::job::SequenceJob;
-use radn_core::sequence::{scene_folders, SequencePattern};
+use radn_core::io::frame::Requirements;
+use radn_core::io::sequence::{scene_folders, SequencePattern};
+use radn_core::run::job::SequenceJob;
 
 use crate::input::ChannelArgs;
 use radn_core::classic::pipeline::ClassicDenoiser;
@@ -60,7 +60,7 @@ pub fn run(a: Args) -> Result<()> {
         let outputs = frames.iter().map(|&f| Some(out.path(f))).collect();
         let reader = a.channels.reader(&inputs[0].1, Requirements::DENOISE)?;
         // pseudo-references are training targets: keep full precision
-        let output_kind = Some(radn_core::exr_file::SampleKind::F32);
+        let output_kind = Some(radn_core::io::exr_file::SampleKind::F32);
         jobs.push(SequenceJob {
             inputs,
             outputs,
@@ -69,7 +69,7 @@ pub fn run(a: Args) -> Result<()> {
             output_kind,
             guides: radn_core::guide::JobGuides::FromReader,
             replace_denoised: true,
-            bands: radn_core::job::Bands::Auto,
+            bands: radn_core::run::job::Bands::Auto,
             rendered: None,
         });
     }

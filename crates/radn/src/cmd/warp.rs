@@ -4,11 +4,11 @@ use std::path::PathBuf;
 
 use anyhow::{anyhow, Result};
 use radn_core::align::AlignParams;
-use radn_core::exr_file::{ExrFile, SampleKind};
-use radn_core::frame::Requirements;
-use radn_core::output::{ensure_not_input, ensure_writable_dir};
-use radn_core::sequence::sequence_files;
-use radn_core::window::WindowReader;
+use radn_core::io::exr_file::{ExrFile, SampleKind};
+use radn_core::io::frame::Requirements;
+use radn_core::io::output::{ensure_not_input, ensure_writable_dir};
+use radn_core::io::sequence::sequence_files;
+use radn_core::run::window::WindowReader;
 
 use crate::input::ChannelArgs;
 

@@ -4,7 +4,7 @@
 use std::path::{Path, PathBuf};
 use std::process::Command;
 
-use radn_core::exr_file::{ExrFile, SampleKind};
+use radn_core::io::exr_file::{ExrFile, SampleKind};
 
 /// The Cycles sample that ships in the repository.
 pub fn sample() -> PathBuf {

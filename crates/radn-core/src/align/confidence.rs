@@ -2,8 +2,8 @@
 
 use rayon::prelude::*;
 
-use crate::frame::FAR_DEPTH;
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::io::frame::FAR_DEPTH;
 
 /// Tolerances of the confidence terms. Each term is 1 for perfect agreement and falls off
 /// smoothly; the confidence is their product.
@@ -227,7 +227,7 @@ fn normal_term(a: &Plane, b: &Plane, i: usize, n: usize, p: &ConfidenceParams) -
 
 /// 3×3 box filter with edge repeat.
 pub fn box3(p: &Plane) -> Plane {
-    crate::image_ops::box_mean(p, 1)
+    crate::image::ops::box_mean(p, 1)
 }
 
 #[cfg(test)]

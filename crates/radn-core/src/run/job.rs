@@ -1,9 +1,9 @@
 //! Denoising whole sequences: every frame decoded once and kept while windows need it (in
 //! memory, or band by band in a scratch file from which each band reads only the rows it
-//! reaches: [`crate::row_store`]), frames whose output exists skipped (so a killed
+//! reaches: [`crate::run::row_store`]), frames whose output exists skipped (so a killed
 //! run resumes), results written into a copy of the input file that keeps every other layer,
 //! through a temporary file renamed into place. Each output frame is claimed while it is made
-//! ([`crate::output_locks::OutputClaim`]), so two runs on one output write each frame once.
+//! ([`crate::io::output_locks::OutputClaim`]), so two runs on one output write each frame once.
 
 use std::collections::BTreeMap;
 use std::ops::Range;
@@ -11,19 +11,19 @@ use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
 use crate::align::window_indices;
-use crate::banding::{
+use crate::error::{Error, Result};
+use crate::guide::JobGuides;
+use crate::io::denoised_output::{write_banded, write_result};
+use crate::io::exr_file::{ExrFile, SampleKind};
+use crate::io::frame::{Frame, FrameReader};
+use crate::io::output::{ensure_not_input, ensure_writable_dir};
+use crate::io::output_locks::OutputClaim;
+use crate::run::banding::{
     frame_bands, hop_reach, window_band_rows, FrameBand, FrameStats, MotionReach, STATS_ROWS,
 };
-use crate::denoised_output::{write_banded, write_result};
-use crate::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
-use crate::error::{Error, Result};
-use crate::exr_file::{ExrFile, SampleKind};
-use crate::frame::{Frame, FrameReader};
-use crate::guide::JobGuides;
-use crate::output::{ensure_not_input, ensure_writable_dir};
-use crate::output_locks::OutputClaim;
-use crate::row_store::{FrameStore, RowStore};
-use crate::window::WindowReader;
+use crate::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
+use crate::run::row_store::{FrameStore, RowStore};
+use crate::run::window::WindowReader;
 
 /// Whether frames are denoised band by band, where the method can
 /// ([`WindowDenoiser::banded`]). Band by band, memory follows the band, not the frame; whole

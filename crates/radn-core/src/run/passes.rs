@@ -7,14 +7,14 @@
 
 use std::path::PathBuf;
 
-use crate::denoiser::WindowDenoiser;
 use crate::error::{Error, Result};
-use crate::exr_file::SampleKind;
-use crate::frame::FrameReader;
 use crate::guide::{JobGuides, OidnGuides};
-use crate::job::{Bands, JobReport, SequenceJob};
+use crate::io::exr_file::SampleKind;
+use crate::io::frame::FrameReader;
+use crate::io::sequence::SequencePattern;
 use crate::post::stabilize::TemporalStabilizer;
-use crate::sequence::SequencePattern;
+use crate::run::denoiser::WindowDenoiser;
+use crate::run::job::{Bands, JobReport, SequenceJob};
 
 /// Chosen frames of a sequence to denoise into an output pattern, in `passes` passes.
 pub struct DenoiseRun {
@@ -158,7 +158,7 @@ impl DenoiseRun {
             };
             std::fs::create_dir_all(&dir).map_err(write_err)?;
             Some(
-                crate::output_locks::ScratchFolder::create(&dir, ".radn-passes-")
+                crate::io::output_locks::ScratchFolder::create(&dir, ".radn-passes-")
                     .map_err(write_err)?,
             )
         } else {

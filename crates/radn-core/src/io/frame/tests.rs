@@ -1,7 +1,7 @@
 //! Tests of `frame`.
 
 use super::*;
-use crate::exr_file::SampleKind;
+use crate::io::exr_file::SampleKind;
 
 fn cycles_file(dir: &Path, with_albedo: bool) -> PathBuf {
     let (w, h) = (8, 4);

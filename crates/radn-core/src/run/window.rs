@@ -7,9 +7,9 @@ use std::path::PathBuf;
 
 use crate::align::{align_window, window_indices, AlignParams, AlignedWindow};
 use crate::error::Result;
-use crate::exr_file::ExrFile;
-use crate::frame::{Frame, FrameReader};
 use crate::guide::JobGuides;
+use crate::io::exr_file::ExrFile;
+use crate::io::frame::{Frame, FrameReader};
 
 /// Decoded frames of a sequence, read window by window in increasing order of the centre:
 /// a frame is decoded the first time a window reaches it and forgotten once no later window
@@ -126,7 +126,7 @@ impl<'a> WindowReader<'a> {
     }
 
     /// The decoded frame at `pos`, which must be loaded, to attach what a method computes from
-    /// it once ([`crate::denoiser::WindowDenoiser::frame_features`]).
+    /// it once ([`crate::run::denoiser::WindowDenoiser::frame_features`]).
     pub fn frame_mut(&mut self, pos: usize) -> &mut Frame {
         self.frames
             .get_mut(&pos)
@@ -168,9 +168,9 @@ impl<'a> WindowReader<'a> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::Requirements;
-    use crate::mapping::ChannelMapping;
-    use crate::plane::Plane;
+    use crate::image::plane::Plane;
+    use crate::io::frame::Requirements;
+    use crate::io::mapping::ChannelMapping;
 
     fn sequence(dir: &std::path::Path, sizes: &[(usize, usize)]) -> Vec<PathBuf> {
         sizes
@@ -184,7 +184,7 @@ mod tests {
                     .enumerate()
                     .map(|(c, n)| (n.to_string(), v(c).channel(0).to_vec()))
                     .collect();
-                ExrFile::from_channels(&p, w, h, channels, crate::exr_file::SampleKind::F32)
+                ExrFile::from_channels(&p, w, h, channels, crate::io::exr_file::SampleKind::F32)
                     .write_atomic(&p)
                     .unwrap();
                 p

@@ -21,9 +21,9 @@
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::evaluation::{opt, row_label};
-use crate::metrics::{self, psnr_from_mse, tonemap_plane};
-use crate::plane::Plane;
+use crate::eval::evaluation::{opt, row_label};
+use crate::eval::metrics::{self, psnr_from_mse, tonemap_plane};
+use crate::image::plane::Plane;
 
 /// One frame's metrics against the noise-free image, estimated from two references.
 #[derive(serde::Serialize, Clone, Debug)]
@@ -74,7 +74,7 @@ pub fn temporal_cross_mse(r: [&[f32]; 2], a: [&[f32]; 2], b: [&[f32]; 2]) -> f64
 }
 
 /// The mean absolute difference of the frame-to-frame changes `a1 − a0` and `b1 − b0` (tMAE,
-/// as [`crate::metrics::temporal`] computes it, of values already tonemapped).
+/// as [`crate::eval::metrics::temporal`] computes it, of values already tonemapped).
 fn temporal_mae(a: [&[f32]; 2], b: [&[f32]; 2]) -> f64 {
     let n = a[1].len();
     let s: f64 = (0..n)
@@ -98,10 +98,10 @@ fn same_shape(a: &Plane, b: &Plane, what: String) -> Result<()> {
 }
 
 /// The metrics of every frame of `frames` (frame, result colour, first reference's colour,
-/// second reference's colour, in frame order, as [`crate::evaluation::Evaluation::planes`]
+/// second reference's colour, in frame order, as [`crate::eval::evaluation::Evaluation::planes`]
 /// holds them plus the second reference). Temporal metrics compare each frame with the
 /// previous one where the two are one sequence step apart, as in
-/// [`crate::evaluation::evaluate`].
+/// [`crate::eval::evaluation::evaluate`].
 pub fn evaluate(frames: &[(i64, &Plane, &Plane, &Plane)]) -> Result<Vec<NoiseFreeMetrics>> {
     for (f, r, a, b) in frames {
         same_shape(r, a, format!("frame {f}: result and reference"))?;
@@ -203,7 +203,7 @@ pub fn to_json_value(rows: &[NoiseFreeMetrics]) -> serde_json::Value {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::metrics::psnr;
+    use crate::eval::metrics::psnr;
 
     /// The linear value whose tonemapped value is `t` (in (0, 1)).
     fn untonemap(t: f32) -> f32 {

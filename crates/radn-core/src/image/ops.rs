@@ -3,7 +3,7 @@
 
 use rayon::prelude::*;
 
-use crate::plane::Plane;
+use crate::image::plane::Plane;
 
 /// Separable Gaussian blur of every channel (edge repeat).
 pub fn gaussian(p: &Plane, sigma: f32) -> Plane {
@@ -92,7 +92,7 @@ pub fn resample(p: &Plane, w2: usize, h2: usize) -> Plane {
             let c = row / h2;
             let y = row % h2;
             for (x, d) in dst.iter_mut().enumerate() {
-                *d = crate::motion::bilinear(
+                *d = crate::align::motion::bilinear(
                     p,
                     c,
                     (x as f32 + 0.5) * sx - 0.5,

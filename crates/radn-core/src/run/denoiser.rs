@@ -1,13 +1,13 @@
 //! The denoiser contract: what a denoising method implements (a whole-window form, and a
 //! band-by-band form where its result allows one) and what it returns, so that the sequence
-//! job ([`crate::job`]) runs the classic denoiser and the networks alike.
+//! job ([`crate::run::job`]) runs the classic denoiser and the networks alike.
 
 use std::ops::Range;
 
-use crate::banding::{FrameBand, FrameStats};
 use crate::error::Result;
-use crate::frame::Frame;
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::io::frame::Frame;
+use crate::run::banding::{FrameBand, FrameStats};
 
 /// The denoised buffers of one frame.
 #[derive(Clone, Debug)]
@@ -83,7 +83,7 @@ pub trait BandDenoiser: Sync {
     /// band-by-band form), `None` when it has none (the default). The sequence job computes
     /// them band by band when a frame first enters a window
     /// ([`BandDenoiser::frame_band_features`]), keeps them on disk
-    /// ([`crate::row_store`]) until the frame's last window is done, and gives each band
+    /// ([`crate::run::row_store`]) until the frame's last window is done, and gives each band
     /// of a window the rows of them its frames' bands hold, in each band's [`Frame::features`].
     fn band_features(&self) -> Option<BandFeatures> {
         None
@@ -100,7 +100,7 @@ pub trait BandDenoiser: Sync {
         None
     }
     /// Denoises rows `out` (band-local) of the centre band of `window`, whose bands hold the
-    /// rows [`crate::banding::window_band_rows`] gives (and the same rows of the per-frame
+    /// rows [`crate::run::banding::window_band_rows`] gives (and the same rows of the per-frame
     /// features, where the method has them); `centre` describes the whole centre frame.
     fn denoise_band(
         &self,

@@ -6,7 +6,7 @@
 //! times the decoding of a whole frame. So each frame is decoded once, band by band, when it
 //! first enters a window ([`FrameStore`]); its Intel Open Image Denoise guide, where the job
 //! computes one, and the method's per-frame features, where it has them
-//! ([`crate::denoiser::BandDenoiser::band_features`]), are computed once likewise and kept in
+//! ([`crate::run::denoiser::BandDenoiser::band_features`]), are computed once likewise and kept in
 //! a [`RowStore`] each. Every band then reads back only the rows it reaches, as stored.
 //! Memory follows the band, not the frame.
 //!
@@ -22,8 +22,8 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::frame::{Aov, Frame};
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::io::frame::{Aov, Frame};
 
 /// Rows of planes of one size (each with its own channel count) in a temporary file (see the
 /// module's documentation).
@@ -169,7 +169,7 @@ impl FrameStore {
         self.rows.write_rows(y0, &planes(band))
     }
 
-    /// The frame's rows `rows`, as [`crate::frame::FrameReader::read_rows`] read them (its
+    /// The frame's rows `rows`, as [`crate::io::frame::FrameReader::read_rows`] read them (its
     /// count of repaired samples is the statistics pass's, not repeated here: 0).
     pub fn read(&self, rows: Range<usize>) -> Result<Frame> {
         let mut stored = self.rows.read_rows(rows)?.into_iter();

@@ -1,6 +1,6 @@
 //! Repair of NaN and infinite samples before anything else sees them.
 
-use crate::plane::Plane;
+use crate::image::plane::Plane;
 
 /// What to do with NaN/Inf samples in an input.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]

@@ -9,8 +9,8 @@ use crate::align::AlignParams;
 use crate::classic::pipeline::{denoise_window, ClassicParams};
 use crate::classic::refine::{refine_motion, RefineParams};
 use crate::error::Result;
-use crate::frame::FrameReader;
-use crate::window::WindowReader;
+use crate::io::frame::FrameReader;
+use crate::run::window::WindowReader;
 
 /// Median seconds of each stage on one 5-frame window.
 #[derive(Clone, Copy, Debug)]

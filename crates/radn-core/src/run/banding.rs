@@ -10,17 +10,17 @@ use std::ops::Range;
 use std::path::Path;
 
 use crate::error::Result;
-use crate::frame::{
+use crate::image::noise_level::NoiseLevelHistogram;
+use crate::image::plane::Plane;
+use crate::io::frame::{
     add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, Frame,
     FrameReader,
 };
-use crate::noise_level::NoiseLevelHistogram;
-use crate::plane::Plane;
 
 /// Rows each one-frame hop of banded alignment needs beyond the rows its motion reaches: the
 /// lookup's farther row and the 3×3 prefilter of the confidence guides. The reach is rounded
 /// up to whole rows, so a lookup reads with a non-zero weight at most one row beyond it, with
-/// either resampling ([`crate::warp::Resampling`]: bilinear's next row, Catmull-Rom's row
+/// either resampling ([`crate::align::warp::Resampling`]: bilinear's next row, Catmull-Rom's row
 /// before and two after the position).
 pub const HOP_MARGIN_ROWS: usize = 2;
 
@@ -241,13 +241,13 @@ pub fn window_band_rows(
 pub struct FrameStats {
     /// How far its motion fields reach, in rows.
     pub reach: MotionReach,
-    /// (sum, count) of its geometry depths ([`crate::frame::add_geometry_depths`]).
+    /// (sum, count) of its geometry depths ([`crate::io::frame::add_geometry_depths`]).
     pub depth: Option<(f64, usize)>,
-    /// (sum, count) of its log luminances ([`crate::frame::add_log_luminance`]).
+    /// (sum, count) of its log luminances ([`crate::io::frame::add_log_luminance`]).
     pub luminance: (f64, usize),
     /// NaN/Inf samples repaired in it.
     pub repaired: usize,
-    /// The histogram its noise level is taken from ([`crate::noise_level`]).
+    /// The histogram its noise level is taken from ([`crate::image::noise_level`]).
     pub noise: NoiseLevelHistogram,
     /// Its first row: the channel names a result is written into, without reading the file
     /// again.
@@ -257,7 +257,7 @@ pub struct FrameStats {
 impl FrameStats {
     /// Reads a frame band by band (`rows` rows at a time, one opening of the file per band)
     /// and gathers its statistics, handing each band read, with its first row, to `each_band`
-    /// (the sequence job keeps the decoded rows: [`crate::row_store::FrameStore`]).
+    /// (the sequence job keeps the decoded rows: [`crate::run::row_store::FrameStore`]).
     pub fn gather(
         reader: &FrameReader,
         path: &Path,
@@ -300,12 +300,12 @@ impl FrameStats {
     }
 
     /// The frame's exposure: its log-average luminance
-    /// ([`crate::frame::log_average_luminance`]).
+    /// ([`crate::io::frame::log_average_luminance`]).
     pub fn exposure(&self) -> f32 {
         log_average_luminance(self.luminance)
     }
 
-    /// The frame's noise level ([`crate::noise_level`]; `None` for a black frame).
+    /// The frame's noise level ([`crate::image::noise_level`]; `None` for a black frame).
     pub fn noise_level(&self) -> Option<f32> {
         self.noise.level()
     }

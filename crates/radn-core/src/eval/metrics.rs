@@ -7,7 +7,7 @@
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::plane::Plane;
+use crate::image::plane::Plane;
 
 /// The largest PSNR reported (identical images would otherwise give infinity).
 pub const PSNR_CAP: f64 = 100.0;
@@ -115,7 +115,7 @@ pub fn ssim(result: &Plane, reference: &Plane) -> Result<f64> {
 
 /// The SSIM window: Gaussian σ = 1.5 (truncated at 3σ ≈ the usual 11×11).
 fn gaussian_blur(src: &[f32], w: usize, h: usize) -> Vec<f32> {
-    crate::image_ops::gaussian(&Plane::from_vec(w, h, 1, src.to_vec()), 1.5).into_vec()
+    crate::image::ops::gaussian(&Plane::from_vec(w, h, 1, src.to_vec()), 1.5).into_vec()
 }
 
 /// Temporal stability of one frame pair: the error of the result's frame-to-frame change

@@ -4,8 +4,8 @@
 use rayon::prelude::*;
 use serde::{Deserialize, Serialize};
 
-use crate::banding::Band;
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::run::banding::Band;
 
 /// Warps `src` onto the frame `flow` is defined on: `out(x) = src(x + flow(x))`, bilinear,
 /// repeating edge pixels for lookups that fall off the image (their confidence is 0 anyway).

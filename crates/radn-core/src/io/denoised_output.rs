@@ -16,11 +16,11 @@ use exr::meta::{BlockDescription, MetaData};
 use half::f16;
 use rayon::prelude::*;
 
-use crate::denoiser::Denoised;
 use crate::error::{Error, Result};
-use crate::exr_file::{describe_exr_error, read_headers, ExrFile, SampleKind};
-use crate::frame::Frame;
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::io::exr_file::{describe_exr_error, read_headers, ExrFile, SampleKind};
+use crate::io::frame::Frame;
+use crate::run::denoiser::Denoised;
 
 /// Where a denoised channel's values come from: plane (0 colour, 1 alpha, 2 + i AOV i) and
 /// channel within it.
@@ -30,7 +30,7 @@ type Source = (usize, usize);
 /// channels named in `names` (its beauty, alpha and AOV channel names) hold the denoised values
 /// `band(rows)` returns for consecutive bands of `band_rows` rows; `kind` overrides their
 /// storage type. Every other part, channel and attribute of `input` is kept; tiled parts are
-/// written without their lower-resolution levels, as [`crate::exr_file::ExrFile`] does.
+/// written without their lower-resolution levels, as [`crate::io::exr_file::ExrFile`] does.
 pub fn write_banded(
     input: &Path,
     output: &Path,
@@ -84,7 +84,7 @@ pub fn write_banded(
         })
         .collect();
 
-    crate::output::write_atomically(output, |writer| {
+    crate::io::output::write_atomically(output, |writer| {
         let mut failure: Option<Error> = None;
         let written = exr::block::write(writer, headers.into(), true, |meta, chunks| {
             let mut run = || -> Result<()> {
@@ -417,14 +417,14 @@ pub fn write_result(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::frame::Aov;
+    use crate::io::frame::Aov;
 
     #[test]
     fn band_by_band_writing_equals_writing_the_whole_frame() {
         let dir = tempfile::tempdir().unwrap();
         let input = dir.path().join("in.exr");
         // a tiled half part (16×16 PIZ tiles) and a scanline float part (16-line ZIP blocks)
-        crate::exr_file::format_tests::multipart(&input);
+        crate::io::exr_file::format_tests::multipart(&input);
         let (w, h) = (40, 24);
         let mut names = Frame::synthetic(Plane::zeros(w, h, 3));
         names.color_channels = ["R", "G", "B"].map(|c| format!("beauty.{c}")).to_vec();

@@ -82,11 +82,11 @@ pub struct ChannelMapping {
 }
 
 const BUILTIN: &[(&str, &str)] = &[
-    ("cycles", include_str!("../presets/cycles.toml")),
-    ("arnold", include_str!("../presets/arnold.toml")),
-    ("renderman", include_str!("../presets/renderman.toml")),
-    ("karma", include_str!("../presets/karma.toml")),
-    ("generic", include_str!("../presets/generic.toml")),
+    ("cycles", include_str!("../../presets/cycles.toml")),
+    ("arnold", include_str!("../../presets/arnold.toml")),
+    ("renderman", include_str!("../../presets/renderman.toml")),
+    ("karma", include_str!("../../presets/karma.toml")),
+    ("generic", include_str!("../../presets/generic.toml")),
 ];
 
 /// The channels a spec resolved to in one file, and the view-layer prefix they carry.

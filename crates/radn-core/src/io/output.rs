@@ -23,7 +23,7 @@ pub fn ensure_not_input(output: &Path, inputs: &[PathBuf]) -> Result<()> {
 /// A temporary file in `dir` for an output that is renamed into place once complete. It gets
 /// the permissions a plainly created file would (0666 less the umask) rather than tempfile's
 /// private 0600, so results stay readable by the rest of a pipeline (compositors, other users).
-/// It is locked for as long as it is open ([`crate::output_locks`]), so that a run starting on
+/// It is locked for as long as it is open ([`crate::io::output_locks`]), so that a run starting on
 /// the same folder can tell it from the debris of a killed run.
 pub fn output_tempfile(
     dir: &Path,
@@ -39,7 +39,7 @@ pub fn output_tempfile(
     }
     loop {
         let tmp = b.tempfile_in(dir)?;
-        if crate::output_locks::lock_created(tmp.as_file(), tmp.path())? {
+        if crate::io::output_locks::lock_created(tmp.as_file(), tmp.path())? {
             return Ok(tmp);
         }
         // another run's cleaner took it for debris before it was locked: make another
@@ -185,7 +185,7 @@ fn create_parent(path: &Path) -> Result<PathBuf> {
 
 /// Creates the folder of `output` if needed and proves it writable by creating and removing a
 /// temporary file in it, so a run fails before any work instead of after it. Then removes what
-/// runs killed while writing there left behind ([`crate::output_locks::remove_stale`]).
+/// runs killed while writing there left behind ([`crate::io::output_locks::remove_stale`]).
 pub fn ensure_writable_dir(output: &Path) -> Result<()> {
     let dir = create_parent(output)?;
     tempfile::Builder::new()
@@ -197,7 +197,7 @@ pub fn ensure_writable_dir(output: &Path) -> Result<()> {
             path: dir.clone(),
             source,
         })?;
-    crate::output_locks::remove_stale(&dir)?;
+    crate::io::output_locks::remove_stale(&dir)?;
     Ok(())
 }
 

@@ -617,7 +617,7 @@ impl ExrFile {
     /// place, so a failed or interrupted write never leaves a partial file at `path`.
     pub fn write_atomic(&self, path: impl AsRef<Path>) -> Result<()> {
         let path = path.as_ref();
-        crate::output::write_atomically(path, |w| {
+        crate::io::output::write_atomically(path, |w| {
             self.image
                 .write()
                 .to_buffered(w)

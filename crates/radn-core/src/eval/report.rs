@@ -6,10 +6,10 @@ use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::evaluation::{mean_row, FrameMetrics};
-use crate::metrics::tonemap;
-use crate::output::{write_bytes_atomically, write_png, PngColor};
-use crate::plane::Plane;
+use crate::eval::evaluation::{mean_row, FrameMetrics};
+use crate::eval::metrics::tonemap;
+use crate::image::plane::Plane;
+use crate::io::output::{write_bytes_atomically, write_png, PngColor};
 
 /// One sequence shown in the report.
 pub struct Shown {
@@ -45,8 +45,8 @@ pub fn write_report(
         source,
     })?;
     // what an earlier report run killed while writing left behind
-    crate::output_locks::remove_stale(dir)?;
-    crate::output_locks::remove_stale(&img)?;
+    crate::io::output_locks::remove_stale(dir)?;
+    crate::io::output_locks::remove_stale(&img)?;
 
     // crops: the most detailed region of the reference, and where the main result errs most
     let crops = choose_crops(reference, &shown[0].color);
@@ -80,8 +80,8 @@ pub fn write_report(
 fn choose_crops(reference: &Plane, result: &Plane) -> Vec<(usize, usize, usize)> {
     let (w, h) = (reference.width(), reference.height());
     let s = CROP.min(w).min(h);
-    let tr = crate::metrics::tonemap_plane(reference);
-    let to = crate::metrics::tonemap_plane(result);
+    let tr = crate::eval::metrics::tonemap_plane(reference);
+    let to = crate::eval::metrics::tonemap_plane(result);
     let step = (s / 4).max(1);
     let score = |x0: usize, y0: usize, f: &dyn Fn(usize, usize) -> f32| -> f32 {
         let mut t = 0.0;

@@ -3,10 +3,10 @@
 use std::path::{Path, PathBuf};
 
 use crate::error::{Error, Result};
-use crate::exr_file::ExrFile;
-use crate::hygiene::{count_nonfinite, repair_nonfinite, NonFinitePolicy};
-use crate::mapping::{resolve, ChannelMapping, MotionSpec, MotionUnits, PlaneSpec};
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::io::exr_file::ExrFile;
+use crate::io::hygiene::{count_nonfinite, repair_nonfinite, NonFinitePolicy};
+use crate::io::mapping::{resolve, ChannelMapping, MotionSpec, MotionUnits, PlaneSpec};
 
 /// Depth given to background pixels whose depth is +Inf.
 pub const FAR_DEPTH: f32 = 1.0e10;
@@ -93,12 +93,12 @@ pub struct Frame {
     /// by a sequence job (Intel Open Image Denoise).
     pub guide: Option<Plane>,
     /// Per-frame features a denoising method computed once for this frame in
-    /// [`crate::denoiser::WindowDenoiser::frame_features`] (a network's per-frame layers), so that the
+    /// [`crate::run::denoiser::WindowDenoiser::frame_features`] (a network's per-frame layers), so that the
     /// windows the frame belongs to reuse them instead of computing them again. Never read from
     /// files.
     pub features: Option<Plane>,
     /// The beauty as rendered, where `color` holds an earlier pass's result and the method
-    /// asks for it ([`crate::denoiser::WindowDenoiser::needs_rendered`]): attached by the
+    /// asks for it ([`crate::run::denoiser::WindowDenoiser::needs_rendered`]): attached by the
     /// sequence job from the original input file. Never read from this file's own layers.
     pub rendered: Option<Plane>,
     /// The full channel names the beauty was read from (R, G, B), for writing results back.
@@ -538,7 +538,7 @@ impl FrameReader {
         what: &str,
         layers: &[String],
         comps: &[String],
-    ) -> Result<Option<crate::mapping::Resolved>> {
+    ) -> Result<Option<crate::io::mapping::Resolved>> {
         self.find_with(file, names, what, layers, comps, self.layer.as_deref())
     }
 
@@ -550,7 +550,7 @@ impl FrameReader {
         layers: &[String],
         comps: &[String],
         choice: Option<&str>,
-    ) -> Result<Option<crate::mapping::Resolved>> {
+    ) -> Result<Option<crate::io::mapping::Resolved>> {
         match resolve(layers, comps, names, choice) {
             Ok(r) => Ok(r),
             Err(prefixes) => Err(Error::AmbiguousLayer {

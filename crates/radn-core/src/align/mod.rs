@@ -1,15 +1,21 @@
 //! Aligned windows: the 2r+1 frames around a centre frame, warped onto it along the renderer's
 //! motion, each with a confidence plane, optionally mixed towards the centre by confidence.
 
+pub mod confidence;
+pub mod motion;
+pub mod warp;
+
 use rayon::prelude::*;
 
-use crate::banding::{Band, FrameBand};
-use crate::confidence::{confidence, ConfidenceParams, Guides};
-use crate::frame::Frame;
-use crate::image_ops::{clamp_fireflies3, luminance};
-use crate::motion::{compose_bands, invert_band, on_screen, round_trip_error_bands};
-use crate::plane::Plane;
-use crate::warp::{mix_with_centre, warp_band, warp_bands_linked, Resampling, SummingPlanes};
+use crate::align::confidence::{confidence, ConfidenceParams, Guides};
+use crate::align::motion::{compose_bands, invert_band, on_screen, round_trip_error_bands};
+use crate::align::warp::{
+    mix_with_centre, warp_band, warp_bands_linked, Resampling, SummingPlanes,
+};
+use crate::image::ops::{clamp_fireflies3, luminance};
+use crate::image::plane::Plane;
+use crate::io::frame::Frame;
+use crate::run::banding::{Band, FrameBand};
 
 /// How many times its brightest neighbour's luminance a pixel of the centre frame may be before
 /// centre mixing treats it as a firefly and copies the clamped value instead
@@ -99,7 +105,7 @@ pub fn align_window(window: &[Option<&Frame>], params: &AlignParams) -> AlignedW
 /// [`align_window`] for a band of the centre frame's rows: the result covers the centre band's
 /// rows and equals those rows of whole-frame alignment, except within two rows of a band edge
 /// that is not a frame edge (the confidence guides' prefilter needs the row beyond). Side
-/// frames must hold the rows [`crate::banding::window_band_rows`] gives.
+/// frames must hold the rows [`crate::run::banding::window_band_rows`] gives.
 pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> AlignedWindow {
     let t = window.len();
     assert!(t % 2 == 1, "window length must be odd");

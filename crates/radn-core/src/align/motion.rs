@@ -3,8 +3,8 @@
 
 use rayon::prelude::*;
 
-use crate::banding::Band;
-use crate::plane::Plane;
+use crate::image::plane::Plane;
+use crate::run::banding::Band;
 
 /// Bilinear lookup of channel `c` at continuous position (x, y), pixel centres at integers;
 /// positions outside the plane repeat the edge.

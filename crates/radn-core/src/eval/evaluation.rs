@@ -7,9 +7,9 @@ use std::path::PathBuf;
 use rayon::prelude::*;
 
 use crate::error::{Error, Result};
-use crate::frame::FrameReader;
-use crate::metrics;
-use crate::plane::Plane;
+use crate::eval::metrics;
+use crate::image::plane::Plane;
+use crate::io::frame::FrameReader;
 
 /// Metrics of one frame.
 #[derive(serde::Serialize, Clone, Debug)]

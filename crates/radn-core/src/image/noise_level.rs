@@ -16,7 +16,7 @@
 
 use std::ops::Range;
 
-use crate::plane::Plane;
+use crate::image::plane::Plane;
 
 /// Added to the albedo before dividing by it (dark albedo would amplify noise without bound).
 const ALBEDO_EPSILON: f32 = 0.02;

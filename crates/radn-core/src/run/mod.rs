@@ -1,0 +1,9 @@
+//! Running a method over a sequence: the method contract, windows read from disk, band-by-band
+//! processing with its scratch rows, sequence jobs and runs of several passes.
+
+pub mod banding;
+pub mod denoiser;
+pub mod job;
+pub mod passes;
+pub mod row_store;
+pub mod window;
