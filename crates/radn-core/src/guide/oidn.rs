@@ -307,7 +307,7 @@ impl OidnDenoiser {
                 ),
             });
         }
-        tracing::info!(
+        tracing::debug!(
             "Intel Open Image Denoise {} from {}",
             version_text(me.version),
             me.path.display()

@@ -27,7 +27,7 @@ use crate::infer::signals::Signals;
 /// The guide mix as a stage of a frame's chain ([`crate::infer::post::PostChain`]).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct MixStage {
-    /// The guide's weight where no learned head gives one per pixel.
+    /// The guide's weight in [0, 1].
     pub weight: f32,
     /// Where the guide alone is taken.
     pub outliers: Option<OutlierRamp>,
@@ -36,32 +36,26 @@ pub struct MixStage {
 }
 
 impl MixStage {
-    /// Mixes rows `rows` of the result `out` (stacked as `signals`) with the guide, by the
-    /// learned weights `learned` where the network gives them; frames without a guide, and a
-    /// mix that would change nothing, are left alone.
+    /// Mixes rows `rows` of the result `out` (stacked as `signals`) with the guide; frames
+    /// without a guide, and a mix that would change nothing, are left alone.
     pub fn apply(
         &self,
         win: &AlignedWindow,
         signals: &Signals,
         out: &mut Plane,
         rows: Range<usize>,
-        learned: Option<&Plane>,
     ) {
         let Some(guide) = &win.centre().guide else {
             return;
         };
-        if !(self.weight > 0.0 || self.outliers.is_some() || learned.is_some()) {
+        if !(self.weight > 0.0 || self.outliers.is_some()) {
             return;
         }
         let g = match self.window {
             Some(range) => window_guide(win, rows, range),
             None => guide.rows(rows),
         };
-        let weight = match learned {
-            Some(w) => MixWeight::PerPixel(w.channel(0)),
-            None => MixWeight::Uniform(self.weight),
-        };
-        mix_with_guide(out, &g, weight, self.outliers, &signals.rgb_aovs())
+        mix_with_guide(out, &g, self.weight, self.outliers, &signals.rgb_aovs())
     }
 }
 
@@ -92,23 +86,13 @@ impl OutlierRamp {
     }
 }
 
-/// The guide's weight in the mix before the [`OutlierRamp`] raises it.
-#[derive(Clone, Copy, Debug)]
-pub enum MixWeight<'a> {
-    /// One weight in [0, 1] for every pixel (`radn denoise --guide-mix W`).
-    Uniform(f32),
-    /// A weight in [0, 1] per pixel, row-major over the mixed pixels: what a network with a
-    /// learned guide mix predicts ([`crate::model::config::NetConfig::guide_mix_head`]).
-    PerPixel(&'a [f32]),
-}
-
 /// Mixes `values` (colour in channels 0–2, then the signals whose RGB groups start at the
 /// offsets `rgb_groups`, every one getting the beauty's gain) with `guide` (RGB, the same
 /// pixels) by `weight`, raised per pixel by `outliers` where given.
 pub fn mix_with_guide(
     values: &mut Plane,
     guide: &Plane,
-    weight: MixWeight,
+    weight: f32,
     outliers: Option<OutlierRamp>,
     rgb_groups: &[usize],
 ) {
@@ -118,32 +102,20 @@ pub fn mix_with_guide(
         "the guide covers the result's pixels"
     );
     let n = values.width() * values.height();
-    match weight {
-        MixWeight::Uniform(w) => {
-            assert!((0.0..=1.0).contains(&w), "a mix weight is in [0, 1]");
-            if w == 0.0 && outliers.is_none() {
-                return;
-            }
-        }
-        MixWeight::PerPixel(ws) => assert_eq!(ws.len(), n, "one mix weight per pixel"),
+    assert!((0.0..=1.0).contains(&weight), "a mix weight is in [0, 1]");
+    if weight == 0.0 && outliers.is_none() {
+        return;
     }
-    let own = |i: usize| match weight {
-        MixWeight::Uniform(w) => w,
-        MixWeight::PerPixel(ws) => ws[i].clamp(0.0, 1.0),
-    };
-    // per pixel, where the weight varies: the mix's own, raised by the ramp where it is on
-    let weights: Option<Vec<f32>> = match (outliers, weight) {
-        (None, MixWeight::Uniform(_)) => None,
-        (None, MixWeight::PerPixel(_)) => Some((0..n).map(own).collect()),
-        (Some(ramp), _) => Some(
-            mapped_luma(values)
-                .iter()
-                .zip(mapped_luma(guide))
-                .enumerate()
-                .map(|(i, (r, g))| own(i).max(ramp.weight((r - g).abs())))
-                .collect(),
-        ),
-    };
+    let own = |_: usize| weight;
+    // per pixel, where the ramp is on: the mix's weight, raised by the ramp
+    let weights: Option<Vec<f32>> = outliers.map(|ramp| {
+        mapped_luma(values)
+            .iter()
+            .zip(mapped_luma(guide))
+            .enumerate()
+            .map(|(i, (r, g))| own(i).max(ramp.weight((r - g).abs())))
+            .collect()
+    });
     for c in 0..3 {
         let gain: Vec<f32> = values
             .channel(c)
@@ -284,7 +256,7 @@ mod tests {
             _ => 0.75,
         });
         let guide = Plane::from_fn(w, h, 3, |x, y, c| 0.5 * colour(x, y, c) + 0.3);
-        mix_with_guide(&mut values, &guide, MixWeight::Uniform(0.25), None, &[3, 6]);
+        mix_with_guide(&mut values, &guide, 0.25, None, &[3, 6]);
         for y in 0..h {
             for x in 0..w {
                 let i = y * w + x;
@@ -421,10 +393,10 @@ mod tests {
         let r = Plane::from_fn(4, 3, 3, |x, y, c| 0.1 + (x * y + c) as f32 * 0.05);
         let g = Plane::from_fn(4, 3, 3, |x, _, c| 0.4 + (x + c) as f32 * 0.02);
         let mut same = r.clone();
-        mix_with_guide(&mut same, &g, MixWeight::Uniform(0.0), None, &[]);
+        mix_with_guide(&mut same, &g, 0.0, None, &[]);
         assert_eq!(same.data(), r.data());
         let mut all = r.clone();
-        mix_with_guide(&mut all, &g, MixWeight::Uniform(1.0), None, &[]);
+        mix_with_guide(&mut all, &g, 1.0, None, &[]);
         for (a, b) in all.data().iter().zip(g.data()) {
             assert!((a - b).abs() < 1e-5);
         }
@@ -444,13 +416,7 @@ mod tests {
         let mid = 0.5 * (ramp.from + ramp.to);
         let r = [at(0.01), 5.0, 0.002, at(mid)];
         let mut values = Plane::from_fn(4, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.5 * r[x] });
-        mix_with_guide(
-            &mut values,
-            &guide,
-            MixWeight::Uniform(0.25),
-            Some(ramp),
-            &[3],
-        );
+        mix_with_guide(&mut values, &guide, 0.25, Some(ramp), &[3]);
         let want = [0.75 * r[0] + 0.25 * 0.4, 0.4, 0.4, 0.5 * r[3] + 0.5 * 0.4];
         for (x, &want) in want.iter().enumerate() {
             let got = values.channel(0)[x];
@@ -460,7 +426,7 @@ mod tests {
         }
         // no weight of its own: the ramp alone still acts
         let mut alone = Plane::from_fn(4, 1, 3, |x, _, _| r[x]);
-        mix_with_guide(&mut alone, &guide, MixWeight::Uniform(0.0), Some(ramp), &[]);
+        mix_with_guide(&mut alone, &guide, 0.0, Some(ramp), &[]);
         assert!((alone.channel(0)[0] - r[0]).abs() < 1e-6);
         assert!((alone.channel(0)[1] - 0.4).abs() < 1e-5);
     }
@@ -473,13 +439,7 @@ mod tests {
         let guide = Plane::from_fn(3, 1, 3, |_, _, _| 0.22);
         let r = [-0.0095f32, 0.0, 0.23];
         let mut values = Plane::from_fn(3, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.5 * r[x] });
-        mix_with_guide(
-            &mut values,
-            &guide,
-            MixWeight::Uniform(0.7),
-            Some(TEST_RAMP),
-            &[3],
-        );
+        mix_with_guide(&mut values, &guide, 0.7, Some(TEST_RAMP), &[3]);
         for c in 0..3 {
             let v = values.channel(c);
             assert!(v[0] <= 0.0 && v[0] >= r[0], "negative result: {}", v[0]);
@@ -492,30 +452,6 @@ mod tests {
                 (values.channel(3 + c)[0] - 0.5 * v[0]).abs() < 1e-6,
                 "the AOV's gain"
             );
-        }
-    }
-
-    #[test]
-    fn per_pixel_weights_mix_each_pixel_by_its_own_and_the_ramp_still_raises_them() {
-        // a 3x1 strip: weights 0, 0.5 and 1 where result and guide agree closely, and a firefly
-        // with weight 0 that the ramp hands to the guide
-        let guide = Plane::from_fn(4, 1, 3, |_, _, _| 0.4);
-        let r = [0.41f32, 0.42, 0.43, 5.0];
-        let ws = [0.0f32, 0.5, 1.0, 0.0];
-        let make = || Plane::from_fn(4, 1, 6, |x, _, c| if c < 3 { r[x] } else { 0.3 * r[x] });
-        for ramp in [None, Some(TEST_RAMP)] {
-            let mut values = make();
-            mix_with_guide(&mut values, &guide, MixWeight::PerPixel(&ws), ramp, &[3]);
-            for x in 0..4 {
-                let w = if x == 3 && ramp.is_some() { 1.0 } else { ws[x] };
-                let want = (1.0 - w) * r[x] + w * 0.4;
-                let got = values.channel(0)[x];
-                assert!((got - want).abs() < 1e-5, "pixel {x}: {got} vs {want}");
-                assert!(
-                    (values.channel(3)[x] - 0.3 * got).abs() < 1e-5,
-                    "the AOV's gain"
-                );
-            }
         }
     }
 }

@@ -9,7 +9,6 @@
 //! sequence level, once every frame's result exists. Which stages run, and how, is the
 //! model's recipe for the frame's noise level ([`PostChain`]).
 
-use burn::tensor::Tensor;
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
@@ -43,8 +42,7 @@ impl PostChain {
     }
 
     /// The chain's result over rows `rows` of `win`, from the kernels' result `kernels` over
-    /// rows `read` (`rows` and the chain's margin, clipped to the frame) and, for a network
-    /// with a learned mix head, its weights over `read`.
+    /// rows `read` (`rows` and the chain's margin, clipped to the frame).
     pub fn run(
         &self,
         win: &AlignedWindow,
@@ -52,11 +50,9 @@ impl PostChain {
         kernels: Plane,
         read: Range<usize>,
         rows: Range<usize>,
-        learned: Option<Plane>,
     ) -> Plane {
         let inside = rows.start - read.start..rows.end - read.start;
         let whole = inside == (0..kernels.height());
-        let learned = learned.map(|w| if whole { w } else { w.rows(inside.clone()) });
         let mut out = match &self.input_blend {
             Some(p) => timed(Stage::InputBlend, || {
                 input_blend::apply(win, &kernels, read, p).rows(inside)
@@ -65,9 +61,7 @@ impl PostChain {
             None => kernels.rows(inside),
         };
         if let Some(mix) = &self.guide_mix {
-            timed(Stage::GuideMix, || {
-                mix.apply(win, signals, &mut out, rows, learned.as_ref())
-            });
+            timed(Stage::GuideMix, || mix.apply(win, signals, &mut out, rows));
         }
         out
     }
@@ -111,21 +105,19 @@ impl NetworkDenoiser {
         let m = chain.margin();
         let read = rows.start.saturating_sub(m)..(rows.end + m).min(h);
         let signals = Signals::of(win);
-        let (kernels, learned) = self.filtered_rows(win, stems, scales, read.clone());
-        signals.split(&chain.run(win, &signals, kernels, read, rows, learned))
+        let kernels = self.filtered_rows(win, stems, scales, read.clone());
+        signals.split(&chain.run(win, &signals, kernels, read, rows))
     }
 
     /// The kernels' result for rows `rows` of an aligned window, every signal stacked along
-    /// channels: colour, then each AOV, then alpha; and the weights of the learned guide mix
-    /// over those rows where the network has one and the recipe's `guide_mix.learned`
-    /// asks for it.
+    /// channels: colour, then each AOV, then alpha.
     fn filtered_rows(
         &self,
         win: &AlignedWindow,
         stems: Option<&WindowStems>,
         scales: FeatureScales,
         rows: Range<usize>,
-    ) -> (Plane, Option<Plane>) {
+    ) -> Plane {
         let t = win.frames.len();
         // every signal stacked along channels: colour, AOVs, alpha
         let signals = Signals::of(win);
@@ -148,13 +140,7 @@ impl NetworkDenoiser {
         let rgb = signals.rgb_groups();
         let eps = self.denoiser.config.demodulate;
         let inputs = &self.denoiser.config.inputs;
-        let learned = self.recipe.guide_mix.learned && self.denoiser.config.guide_mix_head;
-        let inv_exposure = if inputs.exposure {
-            1.0 / scales.exposure
-        } else {
-            1.0
-        };
-        let out = self.run_tiled(
+        self.run_tiled(
             win,
             stems,
             scales,
@@ -167,34 +153,8 @@ impl NetworkDenoiser {
                     Some(beta) => GuideBlend::new(x, beta, inputs, rgb.clone(), chans).apply(v),
                     None => v,
                 };
-                let filtered = filter(p, v, demod.as_ref());
-                if !learned {
-                    return filtered;
-                }
-                // the mix weights travel as one more channel of the tiles' result
-                let w = match (guides.mix, guides.mix_features) {
-                    (Some(w), _) => w,
-                    (None, Some(features)) => {
-                        let b = features.dims()[0];
-                        self.denoiser.mix_weight_of_result(
-                            features,
-                            filtered.clone().narrow(1, 0, 3),
-                            Tensor::full([b, 1, 1, 1], inv_exposure, &self.device),
-                            x,
-                        )
-                    }
-                    (None, None) => {
-                        unreachable!("a network with the guide mix predicts its weights")
-                    }
-                };
-                Tensor::cat(vec![filtered, w], 1)
+                filter(p, v, demod.as_ref())
             },
-        );
-        if learned {
-            let w = out.select_channels(chans, 1);
-            (out.select_channels(0, chans), Some(w))
-        } else {
-            (out, None)
-        }
+        )
     }
 }

@@ -108,21 +108,6 @@ pub struct NetConfig {
     /// ([`crate::model::guide_blend`]); alpha is not blended. Off: the guide is an input only.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub guide_blend: bool,
-    /// Learned guide mix (needs `inputs.guide`): a head on the centre frame's
-    /// features predicts `w ∈ (0, 1)` at every pixel, and the result is `(1 − w)·r + w·g`, the
-    /// kernels' result `r` mixed with the centre frame's guide `g` — in training, where the loss
-    /// sees the mixed result, as at inference. It replaces the fixed weight of
-    /// [`crate::infer::guide_mix`] with one the network sets where the guide keeps what the
-    /// kernels lose (thin dark edges, texture) or the kernels remove what the guide keeps
-    /// (per-frame error). Applied as a per-pixel gain, so AOVs keep summing to the beauty.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub guide_mix_head: bool,
-    /// With `guide_mix_head`: the head also reads the kernels' result and the guide of the
-    /// centre frame (log colour, as the inputs are, and their absolute difference), so it can
-    /// see where the kernels lost or spread what the guide has — a learned outlier ramp. Without
-    /// it the head reads the backbone's features alone.
-    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
-    pub guide_mix_reads_result: bool,
     /// Frame-local stem: the layers before the first RA block read only what a
     /// frame holds itself (colour, albedo, normal, depth, guide, each frame normalised by its
     /// own exposure and depth at inference), and the window's own inputs (alignment confidence,
@@ -332,12 +317,6 @@ impl NetConfig {
         }
         if self.guide_blend && !(self.inputs.guide && self.arch == Arch::Ra) {
             return bad("guide_blend needs arch = \"ra\" and [inputs] guide = true".into());
-        }
-        if self.guide_mix_head && !(self.inputs.guide && self.arch == Arch::Ra) {
-            return bad("guide_mix_head needs arch = \"ra\" and [inputs] guide = true".into());
-        }
-        if self.guide_mix_reads_result && !self.guide_mix_head {
-            return bad("guide_mix_reads_result needs guide_mix_head = true".into());
         }
         if let Some(eps) = self.demodulate {
             if !(eps.is_finite() && eps > 0.0) {

@@ -54,9 +54,6 @@ impl Denoiser {
                 for h in &n.guide_heads {
                     v.push(("guide_blend".into(), h.weight.val()));
                 }
-                for h in &n.mix_heads {
-                    v.push(("guide_mix".into(), h.weight.val()));
-                }
                 v
             }
             Network::Spatial(n) => {

@@ -13,7 +13,6 @@ pub mod guide_blend;
 mod introspect;
 pub mod kernel;
 pub mod layers;
-pub mod learned_mix;
 pub mod multiscale;
 pub mod ra_block;
 pub mod store;
@@ -58,25 +57,6 @@ fn box_head(cin: usize, taps: usize, bias: f32, scale: f32, device: &Device) -> 
 /// computes almost what it did without it.
 pub const GUIDE_BLEND_INIT_BIAS: f32 = -4.0;
 
-/// The learned guide mix head's initial bias: `w = sigmoid(0) = 0.5`, the fixed weight the
-/// guided models are mixed with at inference (`radn denoise --guide-mix auto`), so a network
-/// that gains the head first computes what the fixed mix gave.
-pub const GUIDE_MIX_INIT_BIAS: f32 = 0.0;
-
-/// The scale of the learned guide mix head's difference input: `|ln(1 + r) − ln(1 + g)|` is
-/// multiplied by it, so a difference of 0.05 (where the outlier ramp of
-/// [`crate::infer::guide_mix`] starts to act) reads as 1. Its weights then need to move by about
-/// one unit, not twenty, before the head tells outliers from detail: a fine-tune of a few hundred
-/// steps at 2e-4 moves a weight by at most about 0.1.
-pub const MIX_DIFF_SCALE: f32 = 20.0;
-
-/// Input channels of the learned guide mix's head: the backbone's features, and with
-/// [`NetConfig::guide_mix_reads_result`] the result's and the guide's log colour and their
-/// absolute difference.
-fn mix_head_inputs(config: &NetConfig, features: usize) -> usize {
-    features + if config.guide_mix_reads_result { 9 } else { 0 }
-}
-
 /// A blend-weight head (one channel, before the sigmoid) with small weights and a bias of
 /// [`BLEND_INIT_BIAS`].
 fn blend_head(cin: usize, device: &Device) -> Conv2d {
@@ -107,9 +87,6 @@ pub struct RaNet {
     blend_heads: Vec<Conv2d>,
     /// With `guide_blend`: one per-frame head of the guide-blend weight β (before the sigmoid).
     guide_heads: Vec<Conv2d>,
-    /// With `guide_mix_head`: one head on the centre frame's features of the guide mix weight
-    /// `w` (before the sigmoid).
-    mix_heads: Vec<Conv2d>,
 }
 
 /// tKPCN (Vogels et al. 2018): per-frame spatial kernels, then a temporal kernel over the
@@ -160,13 +137,6 @@ pub struct GuideWeights {
     /// β of the guide blend per frame and pixel, `[B, T, 1, H, W]`
     /// ([`crate::model::guide_blend::GuideBlend`]); `None` without the blend.
     pub blend: Option<Tensor<5>>,
-    /// `w` of the learned guide mix per pixel, `[B, 1, H, W]`
-    /// ([`NetConfig::guide_mix_head`]); `None` without it, and for a head that reads the
-    /// kernels' result, which gives [`GuideWeights::mix_features`] instead.
-    pub mix: Option<Tensor<4>>,
-    /// For a learned guide mix that reads the kernels' result: the centre frame's features
-    /// `[B, C, H, W]` its head reads with them ([`Denoiser::mix_weight_of_result`]).
-    pub mix_features: Option<Tensor<4>>,
 }
 
 /// Kernels predicted for a batch of windows.
@@ -218,24 +188,12 @@ impl Denoiser {
                     })
                     .into_iter()
                     .collect();
-                let mix_heads = config
-                    .guide_mix_head
-                    .then(|| {
-                        blend_head_with(
-                            mix_head_inputs(&config, backbone.out_channels()),
-                            GUIDE_MIX_INIT_BIAS,
-                            device,
-                        )
-                    })
-                    .into_iter()
-                    .collect();
                 Network::Ra(RaNet {
                     backbone,
                     head,
                     coarse_heads,
                     blend_heads,
                     guide_heads,
-                    mix_heads,
                 })
             }
             Arch::Tkpcn => {
@@ -263,45 +221,6 @@ impl Denoiser {
         }
     }
 
-    /// The learned guide mix's weight `[B, 1, H, W]` for a head that reads the kernels' result
-    /// ([`NetConfig::guide_mix_reads_result`]): from the centre frame's features
-    /// ([`GuideWeights::mix_features`]), the result's colour `result` (linear, `[B, 3, H, W]`)
-    /// as log colour `ln(1 + max(0, r)·inv_exposure)` like the inputs' (`inv_exposure`
-    /// `[B, 1, 1, 1]`: the reciprocal of what the inputs were divided by), and the centre
-    /// frame's guide as the network `input` (`[B, T, C, H, W]`) holds it.
-    pub fn mix_weight_of_result(
-        &self,
-        features: Tensor<4>,
-        result: Tensor<4>,
-        inv_exposure: Tensor<4>,
-        input: &Tensor<5>,
-    ) -> Tensor<4> {
-        let Network::Ra(n) = &self.net else {
-            panic!("only the RA network has the learned guide mix");
-        };
-        let head = n.mix_heads.first().expect("a learned guide mix head");
-        let scale = inv_exposure.expand(result.dims());
-        let result_log = (result.clamp_min(0.0) * scale + 1.0).log();
-        let guide_log = self.centre_guide_log(input);
-        let diff = (result_log.clone() - guide_log.clone()).abs() * MIX_DIFF_SCALE;
-        sigmoid(conv2d(
-            head,
-            Tensor::cat(vec![features, result_log, guide_log, diff], 1),
-            false,
-        ))
-    }
-
-    /// The centre frame's guide as the network reads it (log colour, `[B, 3, H, W]`) from its
-    /// input `[B, T, C, H, W]`.
-    fn centre_guide_log(&self, input: &Tensor<5>) -> Tensor<4> {
-        let [b, t, _, h, w] = input.dims();
-        input
-            .clone()
-            .narrow(1, t / 2, 1)
-            .narrow(2, self.config.inputs.guide_offset(), 3)
-            .reshape([b, 3, h, w])
-    }
-
     /// The stem of a frame-local network ([`NetConfig::frame_local_stem`]) for frames `[n, C,
     /// H, W]` (`C` = [`NetConfig::input_channels`]; the window's own channels are not read):
     /// `[n, width, H, W]`, what [`Denoiser::predict_with_stem`] takes instead of computing it.
@@ -321,8 +240,7 @@ impl Denoiser {
         self.predict_guided(input, t).0
     }
 
-    /// [`Denoiser::predict`], and for a guided network the weights of its guide blend and of its
-    /// learned guide mix.
+    /// [`Denoiser::predict`], and for a guided network the weights of its guide blend.
     pub fn predict_guided(&self, input: Tensor<5>, t: f32) -> (Prediction, GuideWeights) {
         timed(Stage::Heads, || self.predict_untimed(input, t, None))
     }
@@ -367,7 +285,7 @@ impl Denoiser {
         })
     }
 
-    /// β of the guide blend and `w` of the learned guide mix from per-frame features
+    /// β of the guide blend from per-frame features
     /// `[B·T, C, H', W']` (cropped to `h × w`), where the network has them.
     fn guide_weights(
         &self,
@@ -377,33 +295,13 @@ impl Denoiser {
         h: usize,
         w: usize,
     ) -> GuideWeights {
-        let [bt, fc, hp, wp] = feats.dims();
+        let [bt, ..] = feats.dims();
         let blend = n.guide_heads.first().map(|head| {
             let beta = sigmoid(conv2d(head, feats.clone(), false));
             let beta = beta.slice([0..bt, 0..1, 0..h, 0..w]);
             beta.reshape([b, bt / b, 1, h, w])
         });
-        let centre = || {
-            let frames = bt / b;
-            feats
-                .clone()
-                .reshape([b, frames, fc, hp, wp])
-                .narrow(1, frames / 2, 1)
-                .reshape([b, fc, hp, wp])
-        };
-        let reads_result = self.config.guide_mix_reads_result;
-        let mix = n
-            .mix_heads
-            .first()
-            .filter(|_| !reads_result)
-            .map(|head| sigmoid(conv2d(head, centre(), false)).slice([0..b, 0..1, 0..h, 0..w]));
-        let mix_features = (reads_result && !n.mix_heads.is_empty())
-            .then(|| centre().slice([0..b, 0..fc, 0..h, 0..w]));
-        GuideWeights {
-            blend,
-            mix,
-            mix_features,
-        }
+        GuideWeights { blend }
     }
 
     fn predict_untimed(

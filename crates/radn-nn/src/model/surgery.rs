@@ -1,5 +1,5 @@
 //! Model surgery: a trained network grown or changed in shape (more kernel scales, a
-//! frame-local stem, a guide blend or a learned guide-mix head, other inputs) so that it
+//! frame-local stem, a guide blend, other inputs) so that it
 //! fine-tunes from where it was instead of from scratch.
 
 use super::*;
@@ -68,38 +68,6 @@ impl Denoiser {
         }
         self.config.guide_blend = blend;
         Ok(self)
-    }
-
-    /// The same network with the learned guide mix on or off (`mix`): a new mix head starts at
-    /// [`GUIDE_MIX_INIT_BIAS`], the fixed mix's weight, so a fine-tune that adds it starts from
-    /// what the model it grows gave with the fixed mix. Only the RA network mixes, and only with
-    /// a guide in its inputs.
-    pub fn with_guide_mix_head(mut self, mix: bool, device: &Device) -> Result<Self, String> {
-        let Network::Ra(n) = &mut self.net else {
-            return Err("only arch = \"ra\" has the learned guide mix".into());
-        };
-        if mix && !self.config.inputs.guide {
-            return Err("the learned guide mix needs [inputs] guide = true".into());
-        }
-        self.config.guide_mix_head = mix;
-        let cin = mix_head_inputs(&self.config, n.backbone.out_channels());
-        let fits = |h: &Conv2d| h.weight.dims()[1] == cin;
-        if !mix {
-            n.mix_heads.clear();
-        } else if !n.mix_heads.first().is_some_and(fits) {
-            n.mix_heads = vec![blend_head_with(cin, GUIDE_MIX_INIT_BIAS, device)];
-        }
-        Ok(self)
-    }
-
-    /// Replaces the learned guide mix's head (tests: a head far from its start, whose weights
-    /// vary across the frame).
-    #[cfg(test)]
-    pub(crate) fn set_guide_mix_head(&mut self, head: Conv2d) {
-        let Network::Ra(n) = &mut self.net else {
-            panic!("only the RA network has the learned guide mix");
-        };
-        n.mix_heads = vec![head];
     }
 
     /// The same network reading the input features `inputs`: the first layer gains (or drops)

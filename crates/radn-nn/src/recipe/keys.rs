@@ -64,7 +64,6 @@ pub const KEYS: &[(&str, &str)] = &[
         "mix.outliers",
         "FROM:TO ramp where the guide alone is taken|off",
     ),
-    ("mix.learned", "a learned mix head's weights: on|off"),
     (
         "stabilize",
         "temporal pass over the results: strength A|off",
@@ -89,11 +88,6 @@ impl Recipe {
             }
         };
         let whole = |v: &str| v.parse::<usize>().map_err(|_| bad("not a whole number"));
-        let on_off = |v: &str| match v {
-            "on" | "true" => Ok(true),
-            "off" | "false" => Ok(false),
-            _ => Err(bad("give on or off")),
-        };
         match key {
             "threshold" => {
                 self.threshold = match value.parse::<Setting<f32>>().map_err(|e| bad(&e))? {
@@ -148,8 +142,6 @@ impl Recipe {
                         _ => return Err(bad("give off or a weight in [0, 1]")),
                     },
                 };
-                // a number given by hand replaces a learned mix, as it always has
-                self.guide_mix.learned = false;
             }
             "mix.from" => {
                 self.guide_mix.from = match value {
@@ -175,7 +167,6 @@ impl Recipe {
                     }
                 }
             }
-            "mix.learned" => self.guide_mix.learned = on_off(value)?,
             "stabilize" => {
                 let base = self.stabilize.unwrap_or(super::tuned::STABILIZE);
                 self.stabilize =
@@ -235,7 +226,6 @@ impl Recipe {
                 .guide_mix
                 .outliers
                 .map_or("off".into(), |r| format!("{}:{}", r.from, r.to)),
-            "mix.learned" => if self.guide_mix.learned { "on" } else { "off" }.into(),
             "stabilize" => opt(self.stabilize.map(|s| s.strength)),
             "stabilize.floor" => self.stabilize.map_or("-".into(), |s| s.floor.to_string()),
             "stabilize.noise-radius" => self
@@ -267,9 +257,7 @@ mod tests {
             if v != "-" {
                 r.set(key, &v).unwrap_or_else(|e| panic!("{key}={v}: {e}"));
             }
-            if *key != "mix.weight" {
-                assert_eq!(r, before, "{key}={v}");
-            }
+            assert_eq!(r, before, "{key}={v}");
         }
     }
 

@@ -71,8 +71,6 @@ pub struct GuideMixRecipe {
     /// Where the result and the guide disagree by far more than detail does, the guide alone.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub outliers: Option<OutlierRamp>,
-    /// For a network with a learned mix head: mix by its predicted weights.
-    pub learned: bool,
 }
 
 /// The temporal pass over the results ([`radn_core::post::stabilize::TemporalStabilizer`]).
@@ -154,7 +152,6 @@ impl Recipe {
                 from: MixGuide::FollowLevel,
                 range: guided.then_some(tuned::GUIDE_MIX_RANGE),
                 outliers: guided.then_some(tuned::OUTLIERS),
-                learned: true,
             },
             stabilize: guided.then_some(tuned::STABILIZE),
         }
@@ -175,7 +172,6 @@ impl Recipe {
             from: self.guide_mix.from,
             range: None,
             outliers: None,
-            learned: false,
         };
         self.stabilize = None;
         self

@@ -5,8 +5,6 @@ use burn::tensor::{Device, Tensor, TensorData};
 
 use crate::infer::input::network_features;
 use crate::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
-use crate::model::learned_mix::{LearnedMix, MixWeights};
-use crate::model::{Denoiser, GuideWeights};
 use crate::train::dataset::Tile;
 
 /// A batch as tensors: features `[B,T,C,S,S]`, values `[B,T,3,S,S]`, target `[B,3,S,S]`.
@@ -122,31 +120,4 @@ pub(crate) fn blend_values(
         }
         None => values,
     }
-}
-
-/// The learned guide mix of a batch `b`, for a network with the head (`guides` then hold its
-/// weights, or the features its head reads with the result); the batch then has its centre
-/// guides.
-pub(crate) fn learned_mix<'a>(
-    denoiser: &'a Denoiser,
-    guides: &GuideWeights,
-    b: &Batch,
-) -> Option<LearnedMix<'a>> {
-    let weight = match (&guides.mix, &guides.mix_features) {
-        (Some(w), _) => MixWeights::Given(w.clone()),
-        (None, Some(features)) => MixWeights::OfResult {
-            denoiser,
-            features: features.clone(),
-            input: b.features.clone(),
-            inv_exposure: b.inv_exposure.clone(),
-        },
-        (None, None) => return None,
-    };
-    Some(LearnedMix {
-        weight,
-        guide: b
-            .guide
-            .clone()
-            .expect("a network with the guide mix reads a guide: its batches carry one"),
-    })
 }

@@ -5,7 +5,6 @@ use burn::tensor::Tensor;
 use serde::{Deserialize, Serialize};
 
 use crate::model::demod::Demodulation;
-use crate::model::learned_mix::LearnedMix;
 use crate::model::Prediction;
 use crate::train::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
 use crate::train::loss::{l1, smape};
@@ -131,15 +130,13 @@ pub fn loss_subsets(frames: usize) -> Vec<Vec<bool>> {
 
 /// The loss of a prediction on the window's values against the centre target. With a
 /// `demod`ulation the kernels filter the demodulated values and every estimate is remodulated
-/// before it meets the target; with a learned guide `mix` every estimate is then mixed with the
-/// centre frame's guide, as inference mixes the result.
+/// before it meets the target.
 #[allow(clippy::too_many_arguments)]
 pub fn objective(
     pred: &Prediction,
     values: Tensor<5>,
     target: Tensor<4>,
     demod: Option<&Demodulation>,
-    mix: Option<&LearnedMix<'_>>,
     mode: LossMode,
     loss: &LossFn,
     full_weight: f32,
@@ -152,10 +149,6 @@ pub fn objective(
     let l = |x: Tensor<4>| {
         let x = match demod {
             Some(d) => d.remodulate(x),
-            None => x,
-        };
-        let x = match mix {
-            Some(m) => m.apply(x),
             None => x,
         };
         loss.eval(x, target.clone())
@@ -187,7 +180,6 @@ pub fn objective(
 mod tests {
     use super::*;
     use crate::model::kernel::Kernels;
-    use crate::model::learned_mix::MixWeights;
     use burn::tensor::{Device, TensorData};
 
     #[test]
@@ -307,7 +299,6 @@ mod tests {
             values.clone(),
             target.clone(),
             None,
-            None,
             LossMode::Temporal,
             &LossFn::Pixel(PixelLoss::L1),
             0.0,
@@ -321,7 +312,6 @@ mod tests {
             values.clone(),
             target.clone(),
             None,
-            None,
             LossMode::Spatial,
             &LossFn::Pixel(PixelLoss::L1),
             0.0,
@@ -334,7 +324,6 @@ mod tests {
             values.clone(),
             target.clone(),
             None,
-            None,
             LossMode::Temporal,
             &LossFn::Pixel(PixelLoss::L1),
             0.5,
@@ -342,30 +331,5 @@ mod tests {
         )
         .into_scalar::<f32>();
         assert!((with_full - 7.0).abs() < 1e-5);
-        // a learned mix reaches every term: the guide alone (w = 1) equals the target here
-        let guide_only = LearnedMix {
-            weight: MixWeights::Given(Tensor::ones([1, 1, 1, 1], &d)),
-            guide: Tensor::zeros([1, 1, 1, 1], &d),
-        };
-        let half = LearnedMix {
-            weight: MixWeights::Given(Tensor::full([1, 1, 1, 1], 0.5, &d)),
-            guide: Tensor::zeros([1, 1, 1, 1], &d),
-        };
-        let loss_with = |mix: &LearnedMix| {
-            objective(
-                &pred,
-                values.clone(),
-                target.clone(),
-                None,
-                Some(mix),
-                LossMode::Temporal,
-                &LossFn::Pixel(PixelLoss::L1),
-                0.5,
-                5,
-            )
-            .into_scalar::<f32>()
-        };
-        assert!(loss_with(&guide_only).abs() < 1e-6);
-        assert!((loss_with(&half) - 3.5).abs() < 1e-5);
     }
 }

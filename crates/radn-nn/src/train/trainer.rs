@@ -18,7 +18,7 @@ use crate::model::config::NetConfig;
 use crate::model::demod::Demodulation;
 use crate::model::store;
 use crate::model::Denoiser;
-use crate::train::batch::{blend_values, learned_mix, make_batch};
+use crate::train::batch::{blend_values, make_batch};
 pub use crate::train::checkpoint::{checkpoint_files, step_model_path};
 use crate::train::checkpoint::{drop_metrics_after, drop_rows_from, remove_other_checkpoints};
 pub use crate::train::config::TrainConfig;
@@ -90,16 +90,6 @@ fn start_from(path: &Path, config: NetConfig, device: &Device) -> Result<Denoise
                 path: path.to_path_buf(),
                 detail,
             })?;
-    }
-    if d.config.guide_mix_head != config.guide_mix_head
-        || d.config.guide_mix_reads_result != config.guide_mix_reads_result
-    {
-        // a fine-tune may add the learned guide mix: its head starts at the fixed mix's weight
-        d.config.inputs = config.inputs.clone();
-        d.config.guide_mix_reads_result = config.guide_mix_reads_result;
-        d = d
-            .with_guide_mix_head(config.guide_mix_head, device)
-            .map_err(load_err)?;
     }
     if d.config.scales() != config.scales() {
         // a fine-tune may add (or drop) kernel scales: the new heads start from the old ones
@@ -341,7 +331,6 @@ impl Trainer {
         let thr = self.denoiser.config.default_threshold();
         let demod = self.demodulation(&b.features);
         let (pred, guides) = self.denoiser.predict_guided(b.features.clone(), thr);
-        let mix = learned_mix(&self.denoiser, &guides, &b);
         let values = blend_values(
             &self.denoiser.config,
             &b.features,
@@ -353,7 +342,6 @@ impl Trainer {
             values,
             b.target,
             demod.as_ref(),
-            mix.as_ref(),
             self.config.mode,
             &self.loss_fn,
             self.config.full_weight,
@@ -421,7 +409,6 @@ impl Trainer {
             );
             let demod = self.demodulation(&b.features);
             let (pred, guides) = denoiser.predict_guided(b.features.clone(), thr);
-            let mix = learned_mix(&denoiser, &guides, &b);
             let values = blend_values(
                 &denoiser.config,
                 &b.features,
@@ -433,7 +420,6 @@ impl Trainer {
                 values.clone(),
                 b.target.clone(),
                 demod.as_ref(),
-                mix.as_ref(),
                 self.config.mode,
                 &self.loss_fn,
                 self.config.full_weight,
@@ -441,10 +427,6 @@ impl Trainer {
             )
             .into_scalar::<f32>() as f64;
             let out = crate::model::demod::filter(&pred, values, demod.as_ref());
-            let out = match &mix {
-                Some(m) => m.apply(out),
-                None => out,
-            };
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)
