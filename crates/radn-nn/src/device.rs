@@ -65,7 +65,9 @@ impl ComputeDevice {
         }
     }
 
-    /// The burn device for training (the same device with automatic differentiation).
+    /// The burn device for training (the same device with automatic differentiation; needs
+    /// the `autodiff` feature, which `radn-train` turns on).
+    #[cfg(feature = "autodiff")]
     pub fn open_for_training(self) -> Result<Device> {
         Ok(self.open()?.autodiff())
     }
@@ -175,6 +177,7 @@ mod tests {
         assert_eq!(ComputeDevice::default(), ComputeDevice::Cpu);
         let device = ComputeDevice::Cpu.open().unwrap();
         assert!(device == Device::flex());
+        #[cfg(feature = "autodiff")]
         assert!(ComputeDevice::Cpu
             .open_for_training()
             .unwrap()

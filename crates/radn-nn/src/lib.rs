@@ -1,9 +1,11 @@
-//! radn-nn: the Robust Average network (paper sections 3 and 4) and its baselines on burn, in
-//! three stages: the model ([`model`]: configuration, layers, RA blocks, backbones, kernels,
-//! demodulation, model files), inference ([`infer`]: the tiled network denoiser, its inputs,
-//! temporal utilisation) and training ([`train`]: tile datasets, objective, losses, trainer,
-//! curves). [`device`] says where it runs (CPU or CUDA). [`mod@bench`] measures the network's throughput, [`profile`] where a denoising run's
-//! time goes.
+//! radn-nn: the Robust Average network (paper sections 3 and 4) and its baselines on burn,
+//! and their inference: the model ([`model`]: configuration, layers, RA blocks, backbones,
+//! kernels, demodulation, model files), its tuned settings ([`recipe`]), and inference
+//! ([`infer`]: the tiled network denoiser, its inputs, the stages after the kernels, temporal
+//! utilisation). [`device`] says where it runs (CPU or CUDA); [`mod@bench`] measures inference
+//! throughput, [`profile`] where a denoising run's time goes. Training is the `radn-train`
+//! crate: this one builds without automatic differentiation or an optimizer unless its
+//! `autodiff` feature is on.
 
 #![deny(missing_docs)]
 
@@ -14,7 +16,6 @@ pub mod infer;
 pub mod model;
 pub mod profile;
 pub mod recipe;
-pub mod train;
 
 pub use error::{NnError, Result};
 pub use model::config::NetConfig;

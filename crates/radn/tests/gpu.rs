@@ -90,7 +90,7 @@ fn a_training_step_on_the_gpu_lowers_the_loss() {
     let Some(gpu) = gpu_or_skip() else { return };
     let device = gpu.open_for_training().unwrap();
     let cfg = radn_nn::NetConfig::preset("small").unwrap();
-    let t = radn_nn::bench::time_network(&cfg, 32, 2, 4, &device);
+    let t = radn_train::bench::time_network(&cfg, 32, 2, 4, &device);
     let (first, last) = (t.losses[0], *t.losses.last().unwrap());
     assert!(
         last < first,

@@ -27,7 +27,7 @@ pub struct BlendParams {
     pub radius: usize,
     /// How many noise variances of change are still taken as noise (1 is the Wiener gain;
     /// larger trusts the smoothing more, and smooths 4-spp inputs more, but ends below the
-    /// input on some clean ones: chosen on the detail validation scenes, docs/research/detail.md).
+    /// input on some clean ones; `docs/research/detail.md`).
     pub noise_scale: f32,
 }
 

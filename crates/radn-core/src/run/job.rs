@@ -28,8 +28,7 @@ use crate::run::window::WindowReader;
 /// Whether frames are denoised band by band, where the method can
 /// ([`WindowDenoiser::banded`]). Band by band, memory follows the band, not the frame; whole
 /// frames are decoded once each and kept while their windows need them, which is faster
-/// (about 15% at 1080p, `docs/research/benchmarks.md`, "Peak memory") and takes memory in proportion
-/// to the frame.
+/// (`docs/research/benchmarks.md`, "Peak memory") and takes memory in proportion to the frame.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub enum Bands {
     /// Band by band for frames of more than [`AUTO_BAND_PIXELS`] pixels, whole frames for

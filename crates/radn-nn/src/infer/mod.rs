@@ -64,7 +64,7 @@ pub fn sampled_terms_loosening(level: Option<f32>, most: f32, schedule: &NoiseSc
 /// `base` with the confidence terms that compare sampled buffers loosened for a centre frame of
 /// noise level `level` by [`sampled_terms_loosening`] up to `most` (`None`: `base` as it is).
 /// One rule for inference ([`NetworkDenoiser::align_params_for`]) and for the tiles a network
-/// trains on ([`crate::train::dataset::PrepareOptions::loosen_sampled_terms`]), so a network
+/// trains on (`radn_train::dataset::PrepareOptions::loosen_sampled_terms`), so a network
 /// sees its training's windows at inference.
 pub fn align_params_loosened(
     base: AlignParams,

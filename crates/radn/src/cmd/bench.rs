@@ -200,8 +200,8 @@ fn network(
     steps: usize,
     on: radn_nn::device::ComputeDevice,
 ) -> Result<()> {
-    use radn_nn::bench::{time_conv_stack, time_network};
     use radn_nn::model::config::Backbone;
+    use radn_train::bench::{time_conv_stack, time_network};
     let cfg = net_config(preset)?;
     let device = on.open_for_training()?;
     let params = radn_nn::Denoiser::new(cfg.clone(), &device).num_params();

@@ -4,7 +4,7 @@ use std::path::PathBuf;
 
 use anyhow::Result;
 use radn_core::setting::{Positive, Setting};
-use radn_nn::train::dataset::{prepare, PrepareOptions};
+use radn_train::dataset::{prepare, PrepareOptions};
 
 /// Arguments of `radn prepare`.
 #[derive(clap::Args)]
@@ -27,7 +27,7 @@ pub struct Args {
     pub seed: u64,
     /// The level folder of the pseudo-reference targets: `pseudo` (classic, `radn pseudoref`)
     /// or `oidn` (the datagen teacher render denoised by Intel Open Image Denoise).
-    #[arg(long, default_value = radn_nn::train::dataset::DEFAULT_PSEUDO_LEVEL)]
+    #[arg(long, default_value = radn_train::dataset::DEFAULT_PSEUDO_LEVEL)]
     pub pseudo: String,
     /// Also store each input frame's guide, for training a guided network (`oidn`: Intel
     /// Open Image Denoise of that very render; `denoised` or a layer: read from the files).

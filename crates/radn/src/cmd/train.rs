@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::{Context, Result};
-use radn_nn::train::trainer::{TrainConfig, Trainer};
+use radn_train::trainer::{TrainConfig, Trainer};
 
 /// Arguments of `radn train`.
 #[derive(clap::Args)]

@@ -20,8 +20,8 @@ use crate::model::cpu::{direct, is_cpu_inference, SendPtr};
 
 /// Floats of one im2col block (1 MiB): its columns stay within a core's L2 cache while the GEMM
 /// packs them. The block's pixel count follows from the layer's K = cin · kh · kw, within
-/// [`MIN_BLOCK_PIXELS`, `MAX_BLOCK_PIXELS`] (measured with `radn bench --convs`: 6% faster on
-/// the default network than a fixed 1024 pixels; the 96-channel kernel head gains most).
+/// [`MIN_BLOCK_PIXELS`, `MAX_BLOCK_PIXELS`] (faster than a fixed block: `radn bench --convs`,
+/// `docs/research/benchmarks.md`).
 const BLOCK_FLOATS: usize = 256 * 1024;
 /// Fewest output pixels per block, so that the GEMM's pixel dimension keeps its kernels busy.
 const MIN_BLOCK_PIXELS: usize = 256;
@@ -475,6 +475,9 @@ mod tests {
         let conv = Conv2dConfig::new([4, 4], [3, 3])
             .with_padding(PaddingConfig2d::Same)
             .init(&device);
+        // radn's path applies to this shape, but not on a training device
+        assert!(applies(&conv, &device));
+        #[cfg(feature = "autodiff")]
         assert!(!applies(&conv, &device.clone().autodiff()));
         let strided = Conv2dConfig::new([4, 4], [3, 3])
             .with_stride([2, 2])

@@ -5,8 +5,8 @@
 //!
 //! Why: at the guided models' width (16 channels) a 3×3 layer has K = 144 and 16 output rows,
 //! too small for the GEMM to amortise its im2col columns (144 floats written and read per pixel)
-//! and its packing; the blocked im2col + GEMM path of [`super::conv`] reached 42 GFLOP/s there
-//! against 125 at width 32 (docs/research/benchmarks.md). Computing in registers needs one load per
+//! and its packing, and the blocked im2col + GEMM path of [`super::conv`] runs far below its
+//! speed at width 32 (`docs/research/benchmarks.md`). Computing in registers needs one load per
 //! input value and tap, shared by [`CHANNELS`] output channels. The result is the same function
 //! (equal to the GEMM path's to float rounding, tested); it runs where the CPU has AVX2 and FMA
 //! or AVX-512F (the wider where both), and [`super::conv`] chooses it (measured by

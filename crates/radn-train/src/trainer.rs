@@ -13,19 +13,19 @@ use burn::store::ModuleSnapshot;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
-use crate::error::{NnError, Result};
-use crate::model::config::NetConfig;
-use crate::model::demod::Demodulation;
-use crate::model::store;
-use crate::model::Denoiser;
-use crate::train::batch::{blend_values, make_batch};
-pub use crate::train::checkpoint::{checkpoint_files, step_model_path};
-use crate::train::checkpoint::{drop_metrics_after, drop_rows_from, remove_other_checkpoints};
-pub use crate::train::config::TrainConfig;
-use crate::train::dataset::{SplitMix, TileDataset};
-use crate::train::layer_stats::{append_csv, gradient_norms, step_stats};
-use crate::train::objective::{objective, sample_pair, LossFn, PairRule, PixelLoss};
+use crate::batch::{blend_values, make_batch};
+pub use crate::checkpoint::{checkpoint_files, step_model_path};
+use crate::checkpoint::{drop_metrics_after, drop_rows_from, remove_other_checkpoints};
+pub use crate::config::TrainConfig;
+use crate::dataset::{SplitMix, TileDataset};
+use crate::layer_stats::{append_csv, gradient_norms, step_stats};
+use crate::objective::{objective, sample_pair, LossFn, PairRule, PixelLoss};
 use radn_core::io::output::{write_atomically_with, write_bytes_atomically};
+use radn_nn::error::{NnError, Result};
+use radn_nn::model::config::NetConfig;
+use radn_nn::model::demod::Demodulation;
+use radn_nn::model::store;
+use radn_nn::model::Denoiser;
 
 /// Saved between steps so a run can resume.
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -268,7 +268,7 @@ impl Trainer {
                 })?;
                 // frozen: it shapes the network's gradients but is never trained
                 LossFn::Perceptual(Box::new(
-                    crate::train::vgg::Vgg19::load(&base.join(p), device)?.no_grad(),
+                    crate::vgg::Vgg19::load(&base.join(p), device)?.no_grad(),
                 ))
             }
             l => LossFn::Pixel(l),
@@ -300,7 +300,7 @@ impl Trainer {
                         pseudo_for: self.config.pseudo_for(),
                         noisier_targets: self.config.noisier_targets,
                         pseudo_from_high: self.train.manifest.pseudo_level
-                            == crate::train::dataset::DEFAULT_PSEUDO_LEVEL,
+                            == crate::dataset::DEFAULT_PSEUDO_LEVEL,
                     },
                 );
                 let (x0, y0) = (rng.below(tile - crop + 1), rng.below(tile - crop + 1));
@@ -426,7 +426,7 @@ impl Trainer {
                 frames,
             )
             .into_scalar::<f32>() as f64;
-            let out = crate::model::demod::filter(&pred, values, demod.as_ref());
+            let out = radn_nn::model::demod::filter(&pred, values, demod.as_ref());
             let tm = |x: Tensor<4>| {
                 let x = x.clamp_min(0.0);
                 (x.clone() / (x + 1.0)).powf_scalar(1.0 / 2.2)
@@ -572,7 +572,7 @@ impl Trainer {
                 }
                 self.checkpoint()?;
                 self.keep_step()?;
-                crate::train::curves::training_curves(
+                crate::curves::training_curves(
                     &self.out.join("metrics.csv"),
                     &self.out.join("curves.png"),
                 )?;

@@ -12,9 +12,9 @@ use burn::tensor::module::max_pool2d;
 use burn::tensor::ops::MaxPoolOptions;
 use burn::tensor::{Device, Tensor};
 
-use crate::error::{NnError, Result};
-use crate::model::layers::conv3;
-use crate::train::loss::smape;
+use crate::loss::smape;
+use radn_nn::error::{NnError, Result};
+use radn_nn::model::layers::conv3;
 
 /// Input and output channels of VGG19's sixteen 3×3 convolutions, in order.
 const LAYERS: [(usize, usize); 16] = [
@@ -151,8 +151,8 @@ mod tests {
         assert!(b.loss(x, y).into_scalar::<f32>() > 0.0);
         // a file without VGG's tensors is refused with a clear message
         let other = dir.path().join("other.safetensors");
-        crate::model::store::save(
-            &crate::Denoiser::new(crate::NetConfig::preset("spatial").unwrap(), &device),
+        radn_nn::model::store::save(
+            &radn_nn::Denoiser::new(radn_nn::NetConfig::preset("spatial").unwrap(), &device),
             &other,
         )
         .unwrap();

@@ -11,8 +11,8 @@ use radn_core::io::mapping::ChannelMapping;
 use radn_nn::infer::input::{network_input, FeatureScales, Region};
 use radn_nn::infer::NetworkDenoiser;
 use radn_nn::model::config::{InputConfig, INPUT_CHANNELS};
-use radn_nn::train::dataset::{prepare, PrepareOptions, TileDataset};
 use radn_nn::{Denoiser, NetConfig};
+use radn_train::dataset::{prepare, PrepareOptions, TileDataset};
 
 fn sample_dir() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../samples/cycles-sample")
@@ -104,7 +104,7 @@ fn prepared_tiles_record_the_exposure_inference_uses() {
     let opts = PrepareOptions::new(32, 1, 1);
     prepare(&sample_dir(), d.path(), &opts, |_, _| {}).unwrap();
     let ds = TileDataset::open(d.path()).unwrap();
-    assert_eq!(ds.manifest.format, radn_nn::train::dataset::TILE_FORMAT);
+    assert_eq!(ds.manifest.format, radn_train::dataset::TILE_FORMAT);
     // record k is the window around frame k + 1 (one tile per window, one scene)
     let tile = ds.get(4).unwrap();
     for (l, level) in ["high", "half", "low"].iter().enumerate() {

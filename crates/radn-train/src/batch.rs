@@ -3,9 +3,9 @@
 
 use burn::tensor::{Device, Tensor, TensorData};
 
-use crate::infer::input::network_features;
-use crate::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
-use crate::train::dataset::Tile;
+use crate::dataset::Tile;
+use radn_nn::infer::input::network_features;
+use radn_nn::model::config::{InputConfig, NetConfig, INPUT_CHANNELS};
 
 /// A batch as tensors: features `[B,T,C,S,S]`, values `[B,T,3,S,S]`, target `[B,3,S,S]`.
 pub struct Batch {
@@ -24,7 +24,7 @@ pub struct Batch {
 
 /// Crops and stacks tiles with their chosen (input, target) levels, with the input features
 /// a network configured with `inputs` reads (tiles of format 2 when it asks for exposure
-/// normalisation: [`crate::train::trainer::Trainer::new`] checks).
+/// normalisation: [`crate::trainer::Trainer::new`] checks).
 pub fn make_batch(
     tiles: &[(Tile, usize, usize, usize, usize)],
     frames: usize,
@@ -115,7 +115,7 @@ pub(crate) fn blend_values(
 ) -> Tensor<5> {
     match beta {
         Some(beta) => {
-            crate::model::guide_blend::GuideBlend::new(features, beta, &config.inputs, vec![0], 3)
+            radn_nn::model::guide_blend::GuideBlend::new(features, beta, &config.inputs, vec![0], 3)
                 .apply(values)
         }
         None => values,

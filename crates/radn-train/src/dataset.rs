@@ -9,7 +9,7 @@
 //! with a guide (format 3, [`Manifest::guide`]) also hold, after each input level's colour,
 //! that level's warped guide `[T, 3, S, S]` (Intel Open Image Denoise of that very render, or
 //! the renderer's denoised layer). What a network reads beyond the base features is derived
-//! from these at training time ([`crate::infer::input::network_features`]).
+//! from these at training time ([`radn_nn::infer::input::network_features`]).
 
 use std::fs::File;
 use std::io::{BufWriter, Read, Seek, SeekFrom, Write};
@@ -25,11 +25,11 @@ use radn_core::io::sequence::{scene_folders, SequencePattern};
 use radn_core::run::window::WindowReader;
 use serde::{Deserialize, Serialize};
 
-use crate::error::{NnError, Result};
-use crate::infer::align_params_loosened;
-use crate::infer::input::{color_values, features, FeatureScales};
-use crate::infer::schedule::NoiseSchedule;
-use crate::model::config::INPUT_CHANNELS;
+use radn_nn::error::{NnError, Result};
+use radn_nn::infer::align_params_loosened;
+use radn_nn::infer::input::{color_values, features, FeatureScales};
+use radn_nn::infer::schedule::NoiseSchedule;
+use radn_nn::model::config::INPUT_CHANNELS;
 
 /// Levels a network input can come from, least noisy first.
 pub const INPUT_LEVELS: [&str; 3] = ["high", "half", "low"];
@@ -74,11 +74,11 @@ pub struct PrepareOptions {
     pub guide_confidence: Option<f32>,
     /// How alignment samples the side frames between pixels; a network trains on tiles
     /// prepared the way its description says inference aligns
-    /// ([`crate::model::config::NetConfig::resampling`]).
+    /// ([`radn_nn::model::config::NetConfig::resampling`]).
     pub resampling: Resampling,
     /// The most alignment's sampled-buffer terms (albedo, normal, depth) are loosened by each
     /// window's centre noise level, as a guided model's recipe aligns
-    /// ([`crate::infer::align_params_loosened`]), so a network trains on the windows it will
+    /// ([`radn_nn::infer::align_params_loosened`]), so a network trains on the windows it will
     /// see; `None`: the strict tolerances at every level (every shipped model's tiles).
     pub loosen_sampled_terms: Option<f32>,
     /// The noise schedule that loosening follows (the recipe's, so training and inference
@@ -102,7 +102,7 @@ impl PrepareOptions {
             guide_confidence: None,
             resampling: Resampling::Bilinear,
             loosen_sampled_terms: None,
-            schedule: crate::recipe::Recipe::for_kind(false).schedule,
+            schedule: radn_nn::recipe::Recipe::for_kind(false).schedule,
         }
     }
 }

@@ -5,10 +5,10 @@ use std::path::{Path, PathBuf};
 
 use serde::{Deserialize, Serialize};
 
-use crate::error::{NnError, Result};
-use crate::model::config::NetConfig;
-use crate::train::dataset::INPUT_LEVELS;
-use crate::train::objective::{LossMode, PixelLoss};
+use crate::dataset::INPUT_LEVELS;
+use crate::objective::{LossMode, PixelLoss};
+use radn_nn::error::{NnError, Result};
+use radn_nn::model::config::NetConfig;
 
 /// A training run's settings (TOML).
 #[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
@@ -88,9 +88,9 @@ pub struct TrainConfig {
     #[serde(default = "d_layer_stats_every")]
     pub layer_stats_every: usize,
     /// Adam's ε (added to the root of the second moment). Default 1e-8 (PyTorch's), not
-    /// burn's 1e-5: the Robust Average blocks' gradients are ~1e-7 per weight, below 1e-5,
-    /// where Adam's steps shrink with the gradient — with 1e-5 those blocks moved 8× less per
-    /// step than the rest of the network (measured, docs/research/training-signal.md).
+    /// burn's 1e-5: the Robust Average blocks' gradients are far below 1e-5, where Adam's steps
+    /// shrink with the gradient, so with 1e-5 those blocks barely train
+    /// (`docs/research/training-signal.md`).
     #[serde(default = "d_adam_epsilon")]
     pub adam_epsilon: f32,
 }

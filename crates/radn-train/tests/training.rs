@@ -3,8 +3,8 @@
 use std::path::{Path, PathBuf};
 
 use burn::tensor::Device;
-use radn_nn::train::dataset::{prepare, PrepareOptions, TileDataset};
-use radn_nn::train::trainer::{checkpoint_files, TrainConfig, Trainer};
+use radn_train::dataset::{prepare, PrepareOptions, TileDataset};
+use radn_train::trainer::{checkpoint_files, TrainConfig, Trainer};
 
 fn sample() -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../samples/cycles-sample")
@@ -133,7 +133,7 @@ fn a_resumed_run_ends_exactly_like_an_uninterrupted_one() {
     assert_eq!(a.state.step, 4);
     // every validation point's weights are kept for choosing a model afterwards
     let kept = |step| {
-        let path = radn_nn::train::trainer::step_model_path(&d.path().join("a"), step);
+        let path = radn_train::trainer::step_model_path(&d.path().join("a"), step);
         digest(&radn_nn::model::store::load(&path, &Device::flex()).unwrap())
     };
     assert_eq!(
@@ -269,7 +269,7 @@ fn fine_tuning_starts_from_the_init_model_and_may_change_kernel_settings() {
 fn pseudo_references_can_be_left_out_of_the_targets() {
     let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
-    let pseudo = radn_nn::train::dataset::TARGET_LEVELS
+    let pseudo = radn_train::dataset::TARGET_LEVELS
         .iter()
         .position(|l| *l == "pseudo")
         .unwrap();
@@ -291,7 +291,7 @@ fn pseudo_references_can_be_left_out_of_the_targets() {
     // the noisier renders still serve as targets at every level below the input
     assert!(without.contains(&0) && without.contains(&1));
     // the teacher for the noisiest input only: every pseudo target has the `low` input
-    let levels = radn_nn::train::dataset::INPUT_LEVELS;
+    let levels = radn_train::dataset::INPUT_LEVELS;
     let low = levels.iter().position(|l| *l == "low").unwrap();
     let mut cfg = config(4);
     cfg.pseudo_inputs = vec!["low".into()];
@@ -335,7 +335,7 @@ fn a_few_steps_lower_the_validation_loss() {
 fn the_perceptual_loss_trains_with_user_supplied_vgg_weights() {
     let d = one_window_tile_sets();
     let device = Device::flex().autodiff();
-    radn_nn::train::vgg::Vgg19::new(&Device::flex())
+    radn_train::vgg::Vgg19::new(&Device::flex())
         .save_torchvision(&d.path().join("vgg19.safetensors"))
         .unwrap();
     let text = "model = \"small\"\ntrain = \"train\"\nval = \"val\"\nbatch = 1\nsteps = 2\nvalidate_every = 2\nval_tiles = 1\nloss = \"vgg\"\n";
@@ -355,7 +355,7 @@ fn the_perceptual_loss_trains_with_user_supplied_vgg_weights() {
 /// windows (the sample's tiles), and the run logs how far each step moves each layer.
 #[test]
 fn a_short_run_moves_every_layer_and_logs_each_layers_updates() {
-    use radn_nn::train::layer_stats::{read_update_ratios, relative_changes};
+    use radn_train::layer_stats::{read_update_ratios, relative_changes};
     let d = tempfile::tempdir().unwrap();
     tiles(&d.path().join("train"), 1, 2);
     tiles(&d.path().join("val"), 2, 1);
@@ -533,7 +533,7 @@ fn guided_tiles_hold_each_renders_own_oidn_guide() {
         Requirements::DENOISE,
     );
     let oidn = radn_core::guide::OidnGuides::new(2).unwrap();
-    for (l, level) in radn_nn::train::dataset::INPUT_LEVELS.iter().enumerate() {
+    for (l, level) in radn_train::dataset::INPUT_LEVELS.iter().enumerate() {
         let stored = tile.guides[l]
             .as_ref()
             .expect("every input level has guides");

@@ -4,10 +4,10 @@
 use burn::tensor::Tensor;
 use serde::{Deserialize, Serialize};
 
-use crate::model::demod::Demodulation;
-use crate::model::Prediction;
-use crate::train::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
-use crate::train::loss::{l1, smape};
+use crate::dataset::{SplitMix, INPUT_LEVELS, TARGET_LEVELS};
+use crate::loss::{l1, smape};
+use radn_nn::model::demod::Demodulation;
+use radn_nn::model::Prediction;
 
 /// Which per-pixel loss.
 #[derive(Clone, Copy, Debug, Deserialize, Serialize, PartialEq, Eq)]
@@ -26,7 +26,7 @@ pub enum LossFn {
     /// SMAPE or L1.
     Pixel(PixelLoss),
     /// The perceptual loss.
-    Perceptual(Box<crate::train::vgg::Vgg19>),
+    Perceptual(Box<crate::vgg::Vgg19>),
 }
 
 impl LossFn {
@@ -179,8 +179,8 @@ pub fn objective(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::model::kernel::Kernels;
     use burn::tensor::{Device, TensorData};
+    use radn_nn::model::kernel::Kernels;
 
     #[test]
     fn pairs_never_target_a_noisier_or_the_same_render() {

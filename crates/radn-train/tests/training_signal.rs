@@ -9,8 +9,8 @@ use radn_core::io::frame::{Frame, FrameReader, Requirements};
 use radn_core::io::mapping::ChannelMapping;
 use radn_nn::infer::input::{color_values, features};
 use radn_nn::model::config::INPUT_CHANNELS;
-use radn_nn::train::loss::smape;
 use radn_nn::{Denoiser, NetConfig};
+use radn_train::loss::smape;
 
 fn sample(level: &str, f: i64) -> PathBuf {
     PathBuf::from(env!("CARGO_MANIFEST_DIR")).join(format!(

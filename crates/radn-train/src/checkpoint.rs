@@ -3,8 +3,8 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::error::Result;
 use radn_core::io::output::write_bytes_atomically;
+use radn_nn::error::Result;
 
 /// Removes the rows logged after `step` from a run's metrics CSV (left by a run killed between
 /// checkpoints), so a resumed run's curves have one row per step and kind.

@@ -6,7 +6,7 @@ use std::path::Path;
 
 use font8x8::UnicodeFonts;
 
-use crate::error::{NnError, Result};
+use radn_nn::error::{NnError, Result};
 
 /// An RGB canvas.
 struct Canvas {
@@ -199,7 +199,7 @@ pub fn panels(list: &[(&str, &[Series])]) -> Vec<u8> {
 /// The per-layer update ratios of a run's `layers.csv` as one line per layer group: log10 of
 /// the group's mean ratio at each logged step.
 fn update_ratio_series(layers: &Path) -> Vec<Series> {
-    use crate::train::layer_stats::{layer_group, read_update_ratios};
+    use crate::layer_stats::{layer_group, read_update_ratios};
     let groups = [
         ("backbone convs", [60, 60, 200]),
         ("RA blocks", [200, 120, 20]),

@@ -8,12 +8,12 @@ use std::path::Path;
 
 use burn::tensor::{Gradients, Tensor};
 
-use crate::error::{NnError, Result};
+use radn_nn::error::{NnError, Result};
 
 /// One layer's training signal at one step.
 #[derive(Clone, Debug, PartialEq)]
 pub struct LayerStat {
-    /// Layer name ([`crate::model::Denoiser::layer_weights`]).
+    /// Layer name ([`radn_nn::model::Denoiser::layer_weights`]).
     pub layer: String,
     /// ‖w‖ before the step.
     pub weight_norm: f64,
