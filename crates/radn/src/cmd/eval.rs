@@ -243,20 +243,32 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
         .iter()
         .position(|(f, _)| *f == display)
         .ok_or_else(|| anyhow!("--input '{input}' has no frame {display} (the report's frame)"))?;
+    let paths: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
+    let (net, reader, oidn) = network_and_reader(a, &paths[pos])?;
+    let mut windows = WindowReader::new(&reader, &paths, net.radius())
+        .with_guides(GuideArgs::window_guides(oidn, &paths));
+    Ok(net.window_utilization(&windows.read(pos)?))
+}
+
+/// The network `--model`/`--guide` name, and a reader of files like `probe` that reads the
+/// guide layer it needs (and OIDN, opened, where the guide is OIDN's).
+fn network_and_reader(
+    a: &Args,
+    probe: &std::path::Path,
+) -> Result<(
+    radn_nn::infer::NetworkDenoiser,
+    radn_core::io::frame::FrameReader,
+    Option<std::sync::Arc<radn_core::guide::OidnGuides>>,
+)> {
     let chosen = crate::model::choose_path(
         a.model.as_deref(),
         &GuideRequest::Given(a.guide.guide.clone()),
         a.guide.oidn_threads,
         a.device,
     )?;
-    let net = chosen.network;
-    let mut reader = a.channels.reader(&files[pos].1, Requirements::DENOISE)?;
+    let mut reader = a.channels.reader(probe, Requirements::DENOISE)?;
     reader.guide = chosen.guide.layer();
-    let oidn = chosen.oidn;
-    let paths: Vec<PathBuf> = files.into_iter().map(|(_, p)| p).collect();
-    let mut windows = WindowReader::new(&reader, &paths, net.radius())
-        .with_guides(GuideArgs::window_guides(oidn, &paths));
-    Ok(net.window_utilization(&windows.read(pos)?))
+    Ok((chosen.network, reader, chosen.oidn))
 }
 
 /// `--utilization`: how much each frame of the window contributes to the network's kernels
@@ -265,17 +277,8 @@ fn weight_at(a: &Args, input: &str, display: i64) -> Result<Vec<Plane>> {
 fn utilization(a: &Args) -> Result<()> {
     let input = a.input.as_ref().expect("clap requires --input");
     let files = sequence_files(input, a.frames.as_deref())?;
-    let chosen = crate::model::choose_path(
-        a.model.as_deref(),
-        &GuideRequest::Given(a.guide.guide.clone()),
-        a.guide.oidn_threads,
-        a.device,
-    )?;
-    let net = chosen.network;
+    let (net, reader, oidn) = network_and_reader(a, &files[0].1)?;
     let model = crate::model::label_for(a.model.as_deref(), a.guide.guide.is_some());
-    let mut reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
-    reader.guide = chosen.guide.layer();
-    let oidn = chosen.oidn;
     let paths: Vec<PathBuf> = files.iter().map(|(_, p)| p.clone()).collect();
     let mut windows = WindowReader::new(&reader, &paths, net.radius())
         .with_guides(GuideArgs::window_guides(oidn, &paths));
