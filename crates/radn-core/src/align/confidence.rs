@@ -3,7 +3,7 @@
 use rayon::prelude::*;
 
 use crate::image::plane::Plane;
-use crate::io::frame::FAR_DEPTH;
+use crate::image::stats::FAR_DEPTH;
 
 /// Tolerances of the confidence terms. Each term is 1 for perfect agreement and falls off
 /// smoothly; the confidence is their product.

@@ -162,8 +162,10 @@ fn candidates() -> Vec<(PathBuf, String)> {
     if let Some(d) = bpy {
         out.push((d.join(name), "Blender's bpy wheel".into()));
     }
-    for d in blender_lib_dirs() {
-        out.push((d.join(name), "the Blender on PATH".into()));
+    if let Some(path) = std::env::var_os("PATH") {
+        for d in blender_lib_dirs(&path) {
+            out.push((d.join(name), "the Blender on PATH".into()));
+        }
     }
     out
 }
@@ -192,18 +194,17 @@ fn python_lib_dirs() -> (Option<PathBuf>, Option<PathBuf>) {
     (lines.next().flatten(), lines.next().flatten())
 }
 
-/// Where a Blender install on `PATH` keeps its bundled libraries: `lib/` beside the executable
-/// (Linux), `../Resources/lib` (macOS), `blender.shared/` (Windows).
-fn blender_lib_dirs() -> Vec<PathBuf> {
+/// Where a Blender install on the search path `path` (as `PATH` holds it) keeps its bundled
+/// libraries: `lib/` beside the executable (Linux), `../Resources/lib` (macOS),
+/// `blender.shared/` (Windows). A `blender` that is a link (e.g. in `/usr/local/bin`) is
+/// followed to the install.
+fn blender_lib_dirs(path: &std::ffi::OsStr) -> Vec<PathBuf> {
     let exe = if cfg!(windows) {
         "blender.exe"
     } else {
         "blender"
     };
-    let Some(path) = std::env::var_os("PATH") else {
-        return Vec::new();
-    };
-    std::env::split_paths(&path)
+    std::env::split_paths(path)
         .map(|d| d.join(exe))
         .filter(|p| p.is_file())
         .filter_map(|p| std::fs::canonicalize(p).ok())
@@ -513,6 +514,31 @@ fn deinterleave(w: usize, h: usize, v: &[f32]) -> Plane {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_blender_on_the_search_path_gives_its_bundled_library_folder() {
+        let d = tempfile::tempdir().unwrap();
+        let install = d.path().join("blender-4.5-linux-x64");
+        std::fs::create_dir_all(install.join("lib")).unwrap();
+        std::fs::write(install.join("blender"), b"#!/bin/sh\n").unwrap();
+        // on the search path through a link, as a system install puts it
+        let bin = d.path().join("bin");
+        std::fs::create_dir_all(&bin).unwrap();
+        #[cfg(unix)]
+        std::os::unix::fs::symlink(install.join("blender"), bin.join("blender")).unwrap();
+        let empty = d.path().join("empty");
+        std::fs::create_dir_all(&empty).unwrap();
+        let path = std::env::join_paths([&empty, &bin]).unwrap();
+        let found = blender_lib_dirs(&path);
+        let want = std::fs::canonicalize(install.join("lib")).unwrap();
+        assert!(
+            found
+                .iter()
+                .any(|f| std::fs::canonicalize(f).unwrap() == want),
+            "{found:?}"
+        );
+        assert!(blender_lib_dirs(&std::env::join_paths([&empty]).unwrap()).is_empty());
+    }
 
     #[test]
     fn interleaving_round_trips() {

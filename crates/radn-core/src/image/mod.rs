@@ -3,3 +3,4 @@
 pub mod noise_level;
 pub mod ops;
 pub mod plane;
+pub mod stats;

@@ -12,10 +12,10 @@ use std::path::Path;
 use crate::error::Result;
 use crate::image::noise_level::NoiseLevelHistogram;
 use crate::image::plane::Plane;
-use crate::io::frame::{
-    add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, Frame,
-    FrameReader,
+use crate::image::stats::{
+    add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth,
 };
+use crate::io::frame::{Frame, FrameReader};
 
 /// Rows each one-frame hop of banded alignment needs beyond the rows its motion reaches: the
 /// lookup's farther row and the 3×3 prefilter of the confidence guides. The reach is rounded
@@ -241,9 +241,9 @@ pub fn window_band_rows(
 pub struct FrameStats {
     /// How far its motion fields reach, in rows.
     pub reach: MotionReach,
-    /// (sum, count) of its geometry depths ([`crate::io::frame::add_geometry_depths`]).
+    /// (sum, count) of its geometry depths ([`crate::image::stats::add_geometry_depths`]).
     pub depth: Option<(f64, usize)>,
-    /// (sum, count) of its log luminances ([`crate::io::frame::add_log_luminance`]).
+    /// (sum, count) of its log luminances ([`crate::image::stats::add_log_luminance`]).
     pub luminance: (f64, usize),
     /// NaN/Inf samples repaired in it.
     pub repaired: usize,
@@ -300,7 +300,7 @@ impl FrameStats {
     }
 
     /// The frame's exposure: its log-average luminance
-    /// ([`crate::io::frame::log_average_luminance`]).
+    /// ([`crate::image::stats::log_average_luminance`]).
     pub fn exposure(&self) -> f32 {
         log_average_luminance(self.luminance)
     }

@@ -3,7 +3,7 @@
 
 use radn_core::align::AlignedWindow;
 use radn_core::image::noise_level::NoiseLevelHistogram;
-use radn_core::io::frame::{
+use radn_core::image::stats::{
     add_geometry_depths, add_log_luminance, log_average_luminance, mean_geometry_depth, FAR_DEPTH,
 };
 use rayon::prelude::*;
