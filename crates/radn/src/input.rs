@@ -156,3 +156,29 @@ impl From<BandsArg> for radn_core::run::job::Bands {
         }
     }
 }
+
+/// `--tune`'s `KEY=VALUE` pairs, each split at its `=`.
+pub fn tune_pairs(tune: &[String]) -> Result<Vec<(&str, &str)>> {
+    tune.iter()
+        .map(|t| {
+            t.split_once('=')
+                .map(|(k, v)| (k.trim(), v.trim()))
+                .ok_or_else(|| anyhow!("--tune {t}: give KEY=VALUE (--tune help lists the keys)"))
+        })
+        .collect()
+}
+
+/// The classic denoiser with `--tune classic.KEY=VALUE` applied (any other key is an error:
+/// it tunes the network).
+pub fn classic_tuned(tune: &[String]) -> Result<radn_core::ClassicDenoiser> {
+    let mut d = radn_core::ClassicDenoiser::default();
+    for (key, value) in tune_pairs(tune)? {
+        if !key.starts_with("classic.") {
+            return Err(anyhow!(
+                "--tune {key}: a network setting, and this run uses the classic method"
+            ));
+        }
+        d.set(key, value).map_err(|e| anyhow!(e))?;
+    }
+    Ok(d)
+}

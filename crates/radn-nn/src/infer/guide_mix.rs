@@ -106,14 +106,12 @@ pub fn mix_with_guide(
     if weight == 0.0 && outliers.is_none() {
         return;
     }
-    let own = |_: usize| weight;
     // per pixel, where the ramp is on: the mix's weight, raised by the ramp
     let weights: Option<Vec<f32>> = outliers.map(|ramp| {
         mapped_luma(values)
             .iter()
             .zip(mapped_luma(guide))
-            .enumerate()
-            .map(|(i, (r, g))| own(i).max(ramp.weight((r - g).abs())))
+            .map(|(r, g)| weight.max(ramp.weight((r - g).abs())))
             .collect()
     });
     for c in 0..3 {
@@ -123,7 +121,7 @@ pub fn mix_with_guide(
             .zip(guide.channel(c))
             .enumerate()
             .map(|(i, (&r, &g))| {
-                let w = weights.as_ref().map_or_else(|| own(i), |ws| ws[i]);
+                let w = weights.as_ref().map_or(weight, |ws| ws[i]);
                 // a result at or below zero cannot be moved toward the guide by a gain: the
                 // guide's share would multiply its sign (a −0.01 became −1357 on dense fur)
                 let toward_guide = if r > 0.0 {

@@ -12,7 +12,7 @@ use radn_core::setting::Setting;
 use radn_nn::device::ComputeDevice;
 use radn_nn::infer::NetworkDenoiser;
 
-use crate::input::ChannelArgs;
+use crate::input::{classic_tuned, tune_pairs, ChannelArgs};
 use crate::model::{choose_path, GuideRequest};
 
 /// Denoising methods.
@@ -257,23 +257,11 @@ pub fn run(a: Args) -> Result<()> {
     Ok(())
 }
 
-/// `--tune`'s pairs, each split at its `=`.
-fn tune_pairs(a: &Args) -> Result<Vec<(&str, &str)>> {
-    a.tune
-        .iter()
-        .map(|t| {
-            t.split_once('=')
-                .map(|(k, v)| (k.trim(), v.trim()))
-                .ok_or_else(|| anyhow!("--tune {t}: give KEY=VALUE (--tune help lists the keys)"))
-        })
-        .collect()
-}
-
 /// The network with the model's recipe, `--strength` and `--tune` applied, and the run's
 /// tiling.
 fn network_from(a: &Args, mut n: NetworkDenoiser) -> Result<NetworkDenoiser> {
     let guided = n.denoiser.config.inputs.guide;
-    for (key, value) in tune_pairs(a)? {
+    for (key, value) in tune_pairs(&a.tune)? {
         if key.starts_with("classic.") {
             bail!("--tune {key}: a classic denoiser setting, and this run uses the network");
         }
@@ -315,13 +303,7 @@ fn network_from(a: &Args, mut n: NetworkDenoiser) -> Result<NetworkDenoiser> {
 
 /// The classic denoiser with `--strength` and `--tune classic.*` applied.
 fn classic_from(a: &Args) -> Result<ClassicDenoiser> {
-    let mut d = ClassicDenoiser::default();
-    for (key, value) in tune_pairs(a)? {
-        if !key.starts_with("classic.") {
-            bail!("--tune {key}: a network setting, and this run uses the classic method");
-        }
-        d.set(key, value).map_err(|e| anyhow!(e))?;
-    }
+    let mut d = classic_tuned(&a.tune)?;
     d.params.nlm.strength *= a.strength;
     Ok(d)
 }

@@ -9,7 +9,6 @@ use radn_core::io::sequence::{scene_folders, SequencePattern};
 use radn_core::run::job::SequenceJob;
 
 use crate::input::ChannelArgs;
-use radn_core::classic::pipeline::ClassicDenoiser;
 
 /// Arguments of `radn pseudoref`.
 #[derive(clap::Args)]
@@ -38,15 +37,7 @@ pub struct Args {
 /// Makes the pseudo-references, scene by scene.
 pub fn run(a: Args) -> Result<()> {
     let scenes = scene_folders(&a.data, &a.level)?;
-    let mut method = ClassicDenoiser::default();
-    for t in &a.tune {
-        let (key, value) = t
-            .split_once('=')
-            .ok_or_else(|| anyhow::anyhow!("--tune {t}: give classic.KEY=VALUE"))?;
-        method
-            .set(key.trim(), value.trim())
-            .map_err(anyhow::Error::msg)?;
-    }
+    let method = crate::input::classic_tuned(&a.tune)?;
     let mut jobs = Vec::new();
     for s in &scenes {
         let input = SequencePattern::from_folder(&s.join(&a.level))?;
