@@ -136,6 +136,10 @@ pub enum Error {
     /// The output pattern names the input sequence.
     #[error("refusing to write: the output pattern '{pattern}' is the input pattern")]
     OutputIsInput { pattern: String },
+
+    /// The run was asked to stop (Ctrl-C, SIGTERM, or a host application's cancel).
+    #[error("cancelled: the frames finished before are kept, the one in progress was discarded")]
+    Cancelled,
 }
 
 fn guide_message(path: &std::path::Path, detail: &str) -> String {

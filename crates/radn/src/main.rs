@@ -22,6 +22,9 @@ struct Cli {
     /// Log more (-v: debug, -vv: trace); RUST_LOG overrides.
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
+    /// Progress: bar (on a terminal), json (lines on stderr, for programs), off.
+    #[arg(long, global = true, value_enum, default_value_t, value_name = "STYLE")]
+    progress: progress::Style,
     #[command(subcommand)]
     command: Command,
 }
@@ -76,10 +79,27 @@ fn reuse_large_allocations() {
     }
 }
 
+/// Ctrl-C and SIGTERM ask the run to stop at its next frame or band, which removes its
+/// temporary files and claims as it unwinds (a host application cancels a run this way); a
+/// second one ends the process at once, leaving debris that the next run on the folder removes.
+fn stop_cleanly_on_interrupt() {
+    let installed = ctrlc::set_handler(|| {
+        if radn_core::run::cancel::requested() {
+            std::process::exit(130);
+        }
+        radn_core::run::cancel::request();
+        eprintln!("radn: stopping after the current band (again to stop at once)");
+    });
+    if let Err(e) = installed {
+        tracing::warn!("Ctrl-C will stop radn at once, without cleaning up: {e}");
+    }
+}
+
 fn main() -> std::process::ExitCode {
     end_quietly_on_broken_pipes();
     reuse_large_allocations();
     let cli = Cli::parse();
+    progress::set_style(cli.progress);
     let level = match cli.verbose {
         0 => "info",
         1 => "debug",
@@ -102,6 +122,7 @@ fn main() -> std::process::ExitCode {
             return std::process::ExitCode::FAILURE;
         }
     }
+    stop_cleanly_on_interrupt();
     let result = match cli.command {
         Command::Denoise(a) => cmd::denoise::run(a),
         Command::Inspect(a) => cmd::inspect::run(a),
@@ -114,11 +135,25 @@ fn main() -> std::process::ExitCode {
     };
     match result {
         Ok(()) => std::process::ExitCode::SUCCESS,
+        Err(e) if is_cancelled(&e) => {
+            eprintln!("error: {}", error_message(&e));
+            std::process::ExitCode::from(130)
+        }
         Err(e) => {
             eprintln!("error: {}", error_message(&e));
             std::process::ExitCode::FAILURE
         }
     }
+}
+
+/// Whether the run ended because a stop was asked for (exit status 130, as for SIGINT).
+fn is_cancelled(e: &anyhow::Error) -> bool {
+    e.chain().any(|c| {
+        matches!(
+            c.downcast_ref::<radn_core::Error>(),
+            Some(radn_core::Error::Cancelled)
+        )
+    })
 }
 
 /// An error and its causes on one line, each cause once: the library's messages already

@@ -1,8 +1,49 @@
-//! Progress bars for work over frames.
+//! Progress for work over frames: bars for a terminal, or JSON lines for a host application
+//! (the Python package, the Blender extension, a farm's wrapper) that shows progress itself.
 
 use std::fmt::Write;
+use std::sync::OnceLock;
 
 use indicatif::{ProgressBar, ProgressState, ProgressStyle};
+
+/// How progress is shown (`--progress`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
+pub enum Style {
+    /// Bars on stderr when it is a terminal.
+    #[default]
+    Bar,
+    /// One JSON object per line on stderr (`{"event":"progress",…}`), for programs.
+    Json,
+    /// Nothing.
+    Off,
+}
+
+static STYLE: OnceLock<Style> = OnceLock::new();
+
+/// Sets the process's progress style, once, before any work.
+pub fn set_style(style: Style) {
+    let _ = STYLE.set(style);
+}
+
+/// The process's progress style.
+pub fn style() -> Style {
+    STYLE.get().copied().unwrap_or_default()
+}
+
+/// Writes one event as a JSON line on stderr when the style is [`Style::Json`].
+pub fn event(value: serde_json::Value) {
+    if style() == Style::Json {
+        eprintln!("{value}");
+    }
+}
+
+/// A bar that draws only in the [`Style::Bar`] style.
+fn visible(pb: ProgressBar) -> ProgressBar {
+    if style() != Style::Bar {
+        pb.set_draw_target(indicatif::ProgressDrawTarget::hidden());
+    }
+    pb
+}
 
 /// A frame-counting progress bar with rate and ETA (hidden when stderr is not a terminal).
 pub fn frames(len: u64, what: &str) -> ProgressBar {
@@ -15,7 +56,7 @@ pub fn frames(len: u64, what: &str) -> ProgressBar {
         .progress_chars("=> "),
     );
     pb.set_message(what.to_string());
-    pb
+    visible(pb)
 }
 
 /// Steps a [`fine_frames`] bar counts per frame.
@@ -48,5 +89,5 @@ pub fn fine_frames(len: u64, what: &str) -> ProgressBar {
             .progress_chars("=> "),
     );
     pb.set_message(what.to_string());
-    pb
+    visible(pb)
 }

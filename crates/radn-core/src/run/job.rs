@@ -230,6 +230,7 @@ impl SequenceJob {
         let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
         let total = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
+            super::cancel::check()?;
             let claim = (!finished).then(|| self.claim(output)).transpose()?;
             if finished || self.done_by_another_run(output) {
                 report.skipped += 1;
@@ -322,6 +323,7 @@ impl SequenceJob {
         let halo = method.halo();
         let frames = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
+            super::cancel::check()?;
             let claim = (!finished).then(|| self.claim(output)).transpose()?;
             if finished || self.done_by_another_run(output) {
                 report.skipped += 1;
@@ -415,6 +417,7 @@ impl SequenceJob {
             let started = Instant::now();
             let (mut reading, mut denoising) = (Duration::ZERO, Duration::ZERO);
             let denoise_band = |out: Range<usize>| -> Result<Denoised> {
+                super::cancel::check()?;
                 let t = Instant::now();
                 let centre = out.start.saturating_sub(halo)..(out.end + halo).min(height);
                 let rows = window_band_rows(centre.clone(), &hops, height);

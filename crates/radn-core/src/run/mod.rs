@@ -2,6 +2,7 @@
 //! processing with its scratch rows, sequence jobs and runs of several passes.
 
 pub mod banding;
+pub mod cancel;
 pub mod denoiser;
 pub mod job;
 pub mod passes;

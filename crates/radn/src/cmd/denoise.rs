@@ -222,6 +222,7 @@ pub fn run(a: Args) -> Result<()> {
         stabilize,
     };
     let t = std::time::Instant::now();
+    let outputs = run.frames.len();
     let mut bar: Option<(usize, indicatif::ProgressBar)> = None;
     let report = run.run(method.as_ref(), |p| {
         if bar.as_ref().is_none_or(|(pass, _)| *pass != p.pass) {
@@ -240,6 +241,22 @@ pub fn run(a: Args) -> Result<()> {
         if let Some((_, pb)) = &bar {
             pb.set_position((p.done * crate::progress::PARTS_PER_FRAME as f64) as u64);
         }
+        // stages work on different frame counts (the temporal pass reads beyond the frames it
+        // writes): programs get the run's fraction and the frames it writes
+        let stage = if p.frames > 0 {
+            p.done / p.frames as f64
+        } else {
+            1.0
+        };
+        crate::progress::event(serde_json::json!({
+            "event": "progress",
+            "stage": p.pass,
+            "stages": p.passes,
+            "stage_done": p.done,
+            "stage_frames": p.frames,
+            "fraction": ((p.pass - 1) as f64 + stage) / p.passes.max(1) as f64,
+            "frames": outputs,
+        }));
     })?;
     if let Some((_, pb)) = bar {
         pb.finish_and_clear();
@@ -254,6 +271,13 @@ pub fn run(a: Args) -> Result<()> {
     if report.repaired > 0 {
         println!("repaired {} NaN/Inf input samples", report.repaired);
     }
+    crate::progress::event(serde_json::json!({
+        "event": "finished",
+        "written": report.written,
+        "skipped": report.skipped,
+        "repaired": report.repaired,
+        "seconds": t.elapsed().as_secs_f64(),
+    }));
     Ok(())
 }
 
