@@ -158,6 +158,54 @@ fn killed_runs_leave_only_whole_frames_and_the_next_run_removes_their_debris() {
     assert_eq!(only_whole_outputs(&out, "after the last run"), want.len());
 }
 
+#[cfg(unix)]
+#[test]
+fn an_interrupted_run_stops_at_its_next_band_and_leaves_nothing_of_its_own() {
+    use std::io::BufRead;
+    let (want, _) = reference();
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("out");
+    let mut child = denoise_cmd(&out)
+        .args(["--progress", "json"])
+        .stdout(Stdio::null())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    // SIGTERM (what a host application's cancel and `kill` send) once the first output frame is
+    // done, while the rest are in progress
+    let mut lines = std::io::BufReader::new(child.stderr.take().unwrap()).lines();
+    let mut log = Vec::new();
+    for line in lines.by_ref() {
+        let line = line.unwrap();
+        let event: serde_json::Value = serde_json::from_str(&line).unwrap_or_default();
+        log.push(line);
+        if event["event"] == "progress"
+            && event["stage"] == event["stages"]
+            && event["stage_done"].as_f64().unwrap_or(0.0) >= 1.0
+        {
+            // SAFETY: kill(2) on our own child's pid
+            unsafe { libc::kill(child.id() as libc::pid_t, libc::SIGTERM) };
+            break;
+        }
+    }
+    log.extend(lines.map(|l| l.unwrap()));
+    let status = child.wait().unwrap();
+    let log = log.join("\n");
+    assert_eq!(status.code(), Some(130), "{log}");
+    assert!(log.contains("error: cancelled"), "{log}");
+    let names = listing(&out);
+    assert!(
+        names.iter().all(|n| !is_radn_temporary(n)),
+        "a stopped run cleans up after itself: {names:?}"
+    );
+    let kept = only_whole_outputs(&out, "after SIGTERM");
+    assert!((1..want.len()).contains(&kept), "{names:?}");
+    // resuming writes the rest
+    let done = denoise_cmd(&out).output().unwrap();
+    assert!(done.status.success());
+    assert_eq!(only_whole_outputs(&out, "resumed"), want.len());
+}
+
 #[test]
 fn two_runs_on_one_output_write_each_frame_once_and_whole() {
     let (want, _) = reference();

@@ -44,7 +44,7 @@ def _on_complete(scene, *_):
     franges = frame_range(frames, scene.frame_step)
     if bpy.app.background:
         job = operators.run_blocking(operators.request_for(scene, pattern, franges))
-        print("radn: " + (job.error if job.error else operators._summary(job)))
+        print(f"radn: {job.error}" if job.error else operators.summary(job))
         return
 
     def start():

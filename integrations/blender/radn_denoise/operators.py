@@ -14,7 +14,8 @@ from .job import DenoiseJob, JobRequest
 current: Optional[DenoiseJob] = None
 
 
-def _summary(job: DenoiseJob) -> str:
+def summary(job: DenoiseJob) -> str:
+    """One line on a finished run, for reports."""
     r = job.result
     return (
         f"radn: denoised {r.written} frames ({r.skipped} already done) in {r.seconds:.1f} s "
@@ -127,7 +128,7 @@ class RADN_OT_denoise_sequence(bpy.types.Operator):
         if job.error is not None:
             self.report({"WARNING"} if job.cancelled else {"ERROR"}, f"radn: {job.error}")
             return {"CANCELLED"}
-        self.report({"INFO"}, _summary(job))
+        self.report({"INFO"}, summary(job))
         return {"FINISHED"}
 
 
