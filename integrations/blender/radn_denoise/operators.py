@@ -104,7 +104,8 @@ class RADN_OT_denoise_sequence(bpy.types.Operator):
     def modal(self, context: bpy.types.Context, event):
         job = self._job
         if event.type == "ESC":
-            job.cancel()
+            job.cancel()  # radn stops at its next band; the timer sees it end
+            return {"RUNNING_MODAL"}
         if event.type != "TIMER":
             return {"PASS_THROUGH"}
         wm = context.window_manager

@@ -145,12 +145,12 @@ def _run(
         if watcher is not None:
             watcher.join()
     if proc.returncode != 0:
-        errors = [l.strip()[len("error: "):] for l in log if l.startswith("error: ")]
+        errors = [line.strip()[len("error: "):] for line in log if line.startswith("error: ")]
         message = errors[-1] if errors else "".join(log).strip() or f"radn exited with status {proc.returncode}"
         if proc.returncode == _CANCELLED_STATUS or stopped.is_set():
             raise Cancelled(message, proc.returncode, "".join(log))
         raise RadnError(message, proc.returncode, "".join(log))
-    return [l.rstrip("\n") for l in out], log
+    return [line.rstrip("\n") for line in out], log
 
 
 def denoise(
@@ -217,7 +217,7 @@ def denoise(
             progress(float(event.get("fraction", 0.0)) * total, total)
 
     out, _ = _run(args, env=env, on_event=on_event, cancel=cancel)
-    path = next((l[len("radn: "):] for l in out if l.startswith("radn: ")), "")
+    path = next((line[len("radn: "):] for line in out if line.startswith("radn: ")), "")
     return DenoiseResult(
         written=int(finished.get("written", 0)),
         skipped=int(finished.get("skipped", 0)),
