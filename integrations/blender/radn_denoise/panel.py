@@ -26,6 +26,8 @@ class RADN_PT_temporal_denoise(bpy.types.Panel):
         scene = context.scene
         s = scene.radn
         layout.prop(s, "after_animation")
+        if s.after_animation:
+            layout.label(text="Needs Denoising Data and Vector passes; Vector needs motion blur off", icon="INFO")
         layout.prop(s, "output")
         if not s.output:
             layout.label(text="Writes to: " + paths.default_output(paths.render_sequence(scene)), icon="INFO")
