@@ -1,0 +1,108 @@
+"""Rendering a scene's frames at several sample counts into radn's generic EXR layout:
+`R,G,B,A`, `albedo.R/G/B` and `N.X/Y/Z` (averaged over each pixel's samples, box filter),
+`Z` (distance along the centre ray), `motion.X/Y` and `motion_next.X/Y` (exact, see motion.py).
+Every file is written to a temporary name and renamed, so a stopped run leaves only whole frames
+and a re-run skips them."""
+
+from __future__ import annotations
+
+import json
+import os
+import time
+
+import numpy as np
+import OpenEXR
+
+from . import motion
+from .backend import mitsuba
+
+
+def seed_of(scene_seed: int, level: str, frame: int) -> int:
+    """The sampler seed of one render: independent across scenes, levels and frames."""
+    h = 1469598103934665603
+    for v in (scene_seed, sum(map(ord, level)) * 131 + len(level), frame):
+        h = ((h ^ v) * 1099511628211) % (1 << 64)
+    return h % (1 << 32)
+
+
+def write_exr(path: str, channels: dict) -> None:
+    """Writes `channels` (name → H×W array) atomically, ZIP-compressed."""
+    os.makedirs(os.path.dirname(path), exist_ok=True)
+    tmp = os.path.join(os.path.dirname(path), f".{os.path.basename(path)}.tmp")
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    chans = {k: OpenEXR.Channel(np.ascontiguousarray(v)) for k, v in channels.items()}
+    OpenEXR.File(header, chans).write(tmp)
+    os.replace(tmp, path)
+
+
+def aux_and_motion(spec, frame):
+    """Depth and motion towards both neighbours for `frame` (null-material shapes, smoke's
+    bounds, are left out: rays pass through them)."""
+    mi = mitsuba()
+    d = spec.dict_at(frame, aovs=False)
+    for key, value in list(d.items()):
+        if isinstance(value, dict) and value.get("bsdf", {}).get("type") == "null":
+            del d[key]
+    scene = mi.load_dict(d)
+    points, keys, dist = motion.visible_points(spec, frame, scene)
+    h, w = spec.height, spec.width
+    prev = motion.motion_to(spec, frame, frame - 1, points, keys)
+    nxt = motion.motion_to(spec, frame, frame + 1, points, keys)
+    return {
+        "Z": dist.reshape(h, w).astype(np.float32),
+        "motion.X": prev[..., 0].astype(np.float32), "motion.Y": prev[..., 1].astype(np.float32),
+        "motion_next.X": nxt[..., 0].astype(np.float32), "motion_next.Y": nxt[..., 1].astype(np.float32),
+    }
+
+
+def render_layers(scene, spp: int, seed: int) -> dict:
+    """Beauty, albedo and shading normal of one render, as generic-layout channels."""
+    mi = mitsuba()
+    mi.render(scene, spp=spp, seed=seed)
+    layers = dict(scene.sensors()[0].film().bitmap().split())
+    beauty = np.array(layers["<root>"], dtype=np.float32)
+    albedo = np.array(layers["albedo"], dtype=np.float32)
+    normal = np.array(layers["nn"], dtype=np.float32)
+    out = {c: beauty[..., i] for i, c in enumerate("RGB")}
+    out["A"] = np.ones(beauty.shape[:2], np.float32)
+    out.update({f"albedo.{c}": albedo[..., i] for i, c in enumerate("RGB")})
+    out.update({f"N.{c}": normal[..., i] for i, c in enumerate("XYZ")})
+    bad = sum(int((~np.isfinite(v)).sum()) for v in out.values())
+    if bad:  # rare fireflies of NaN in Mitsuba's output: zero them, as a renderer's film would
+        out = {k: np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in out.items()}
+    return {k: v.astype(np.float16) for k, v in out.items()}
+
+
+def render_scene(spec, out_dir: str, frames, levels: dict, log=print) -> dict:
+    """Renders `frames` of `spec` at each level (name → spp) into out_dir/<level>/frame_####.exr;
+    returns the manifest it writes (out_dir/manifest.json)."""
+    mi = mitsuba()
+    manifest_path = os.path.join(out_dir, "manifest.json")
+    manifest = {"seed": spec.seed, "renderer": f"mitsuba {mi.__version__} {mi.variant()}",
+                "layout": "<scene>/<level>/frame_####.exr (radn's generic preset)",
+                "resolution": [spec.width, spec.height], "frames": [min(frames), max(frames)],
+                "shot_frames": spec.frames, "scene": spec.description, "levels": {}}
+    if os.path.exists(manifest_path):
+        manifest["levels"] = json.load(open(manifest_path)).get("levels", {})
+    for frame in frames:
+        todo = {lv: spp for lv, spp in levels.items()
+                if not os.path.exists(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"))}
+        if not todo:
+            continue
+        aux = aux_and_motion(spec, frame)
+        scene = mi.load_dict(spec.dict_at(frame))
+        for lv, spp in todo.items():
+            t = time.perf_counter()
+            chans = render_layers(scene, spp, seed_of(spec.seed, lv, frame))
+            chans.update(aux)
+            write_exr(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"), chans)
+            secs = time.perf_counter() - t
+            info = manifest["levels"].setdefault(lv, {"spp": spp, "seconds": 0.0, "frames": 0})
+            info["seconds"] += secs
+            info["frames"] += 1
+            log(f"scene {spec.seed} frame {frame} {lv} ({spp} spp): {secs:.1f} s")
+        tmp = manifest_path + ".tmp"
+        with open(tmp, "w") as f:
+            json.dump(manifest, f, indent=1, sort_keys=True)
+        os.replace(tmp, manifest_path)
+    return manifest
