@@ -20,17 +20,25 @@ BEAUTY = "ViewLayer.Combined"
 ALBEDO = "ViewLayer.Denoising Albedo"
 NORMAL = "ViewLayer.Denoising Normal"
 
+#: (beauty RGB, albedo RGB, normal XYZ) channel names of the layouts OIDN reads: Cycles' and
+#: radn's generic one (tools/mtsgen)
+LAYOUTS = {
+    "cycles": ([f"{BEAUTY}.{c}" for c in "RGB"], [f"{ALBEDO}.{c}" for c in "RGB"], [f"{NORMAL}.{c}" for c in "XYZ"]),
+    "generic": (list("RGB"), [f"albedo.{c}" for c in "RGB"], [f"N.{c}" for c in "XYZ"]),
+}
+
+
+def layout_of(channels, src):
+    """The layout whose beauty, albedo and normal channels are all in `channels`."""
+    for name, groups in LAYOUTS.items():
+        if all(c in channels for g in groups for c in g):
+            return name
+    raise OidnInputError(f"{src}: neither Cycles' beauty, denoising albedo and normal nor the generic "
+                         "layout's R,G,B / albedo.* / N.* (OIDN needs a beauty, albedo and normal)")
+
 
 class OidnInputError(Exception):
     """A frame OIDN cannot denoise (named with the file and what is wrong)."""
-
-
-def _stack(ch, src, prefix, comps):
-    try:
-        return np.stack([ch[f"{prefix}.{c}"].pixels for c in comps], axis=-1).astype(np.float32)
-    except KeyError as e:
-        raise OidnInputError(f"{src}: missing channel {e.args[0]} (OIDN needs Cycles' beauty, "
-                             "denoising albedo and denoising normal)") from None
 
 
 #: The ways OIDN can be run on a Cycles frame with its noisy albedo and normal passes.
@@ -117,9 +125,8 @@ def denoise_file(src, dst, denoiser=None, timings=None):
     with OpenEXR.File(src, separate_channels=True) as f:
         header = dict(f.header())
         ch = dict(f.channels())
-    color = _stack(ch, src, BEAUTY, "RGB")
-    albedo = _stack(ch, src, ALBEDO, "RGB")
-    normal = _stack(ch, src, NORMAL, "XYZ")
+    names = LAYOUTS[layout_of(ch, src)]
+    color, albedo, normal = (np.stack([ch[c].pixels for c in g], axis=-1).astype(np.float32) for g in names)
     for name, img in (("beauty", color), ("albedo", albedo), ("normal", normal)):
         if not np.isfinite(img).all():
             raise OidnInputError(f"{src}: {np.count_nonzero(~np.isfinite(img))} non-finite {name} values")
@@ -130,9 +137,9 @@ def denoise_file(src, dst, denoiser=None, timings=None):
         if own:
             denoiser.close()
     t2 = time.perf_counter()
-    for i, c in enumerate("RGB"):
-        old = ch[f"{BEAUTY}.{c}"].pixels
-        ch[f"{BEAUTY}.{c}"] = OpenEXR.Channel(np.ascontiguousarray(out[..., i].astype(old.dtype)))
+    for i, c in enumerate(names[0]):
+        old = ch[c].pixels
+        ch[c] = OpenEXR.Channel(np.ascontiguousarray(out[..., i].astype(old.dtype)))
     for k in ("channels", "dataWindow", "displayWindow"):
         header.pop(k, None)
     os.makedirs(os.path.dirname(os.path.abspath(dst)), exist_ok=True)
