@@ -22,8 +22,15 @@ struct Cli {
     /// Log more (-v: debug, -vv: trace); RUST_LOG overrides.
     #[arg(short, long, global = true, action = clap::ArgAction::Count)]
     verbose: u8,
-    /// Progress: bar (on a terminal), json (lines on stderr, for programs), off.
-    #[arg(long, global = true, value_enum, default_value_t, value_name = "STYLE")]
+    /// Progress: bar, json (lines on stderr, for programs) or off.
+    #[arg(
+        long,
+        global = true,
+        value_enum,
+        default_value_t,
+        value_name = "STYLE",
+        hide_possible_values = true
+    )]
     progress: progress::Style,
     #[command(subcommand)]
     command: Command,

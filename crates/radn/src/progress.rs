@@ -9,12 +9,13 @@ use indicatif::{ProgressBar, ProgressState, ProgressStyle};
 /// How progress is shown (`--progress`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Default, clap::ValueEnum)]
 pub enum Style {
-    /// Bars on stderr when it is a terminal.
+    // bars on stderr when it is a terminal (the variants' help stays out of `--help`, which the
+    // option's own line explains)
     #[default]
     Bar,
-    /// One JSON object per line on stderr (`{"event":"progress",…}`), for programs.
+    // one JSON object per line on stderr (`{"event":"progress",…}`), for programs
     Json,
-    /// Nothing.
+    // nothing
     Off,
 }
 
