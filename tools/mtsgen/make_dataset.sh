@@ -6,7 +6,7 @@ set -euo pipefail
 here="$(cd "$(dirname "$0")" && pwd)"
 out="${1:-/work/data/mts}"
 cd "$here"
-py=python3
+py="python3 -u"
 $py -m radn_mtsgen dataset --split test --scenes "${TEST_SCENES:-6}" --frames 1-12 \
     --levels low:4,spp0016:16,spp0064:64 --reference-spp 2048 --reference-frames 4-9 --out "$out/test"
 $py -m radn_mtsgen dataset --split val --scenes "${VAL_SCENES:-6}" --frames 1-8 \

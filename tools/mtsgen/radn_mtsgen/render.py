@@ -16,6 +16,9 @@ import OpenEXR
 from . import motion
 from .backend import mitsuba
 
+#: bumped when the same seed would render differently (a split must not mix versions)
+GENERATOR_VERSION = 2
+
 
 def seed_of(scene_seed: int, level: str, frame: int) -> int:
     """The sampler seed of one render: independent across scenes, levels and frames."""
@@ -48,21 +51,42 @@ def aux_and_motion(spec, frame):
     h, w = spec.height, spec.width
     prev = motion.motion_to(spec, frame, frame - 1, points, keys)
     nxt = motion.motion_to(spec, frame, frame + 1, points, keys)
+    emitted = np.full((h * w, 3), np.nan, np.float32)
+    for key in set(keys) - {""}:
+        radiance = spec.emission(key)
+        if radiance is not None:
+            emitted[keys == key] = radiance
     return {
+        "_emitted": emitted.reshape(h, w, 3),
         "Z": dist.reshape(h, w).astype(np.float32),
         "motion.X": prev[..., 0].astype(np.float32), "motion.Y": prev[..., 1].astype(np.float32),
         "motion_next.X": nxt[..., 0].astype(np.float32), "motion_next.Y": nxt[..., 1].astype(np.float32),
     }
 
 
-def render_layers(scene, spp: int, seed: int) -> dict:
-    """Beauty, albedo and shading normal of one render, as generic-layout channels."""
+def denoiser_albedo(albedo, normal, environment, emitted):
+    """The albedo as renderers write it for denoisers (Cycles' Denoising Albedo, OIDN's
+    convention): reflectance on surfaces, the environment's colour where rays hit nothing, the
+    emitted radiance on visible lights. Mitsuba's albedo AOV is 0 for both; a pixel's share of
+    missed rays is 1 − |mean shading normal| (misses add a zero normal)."""
+    coverage = np.clip(np.linalg.norm(normal, axis=-1, keepdims=True), 0.0, 1.0)
+    out = albedo + (1.0 - coverage) * np.asarray(environment, np.float32)
+    lit = ~np.isnan(emitted[..., :1])
+    return np.where(lit, emitted, out).astype(np.float32)
+
+
+def render_layers(scene, spp: int, seed: int, environment=(0.0, 0.0, 0.0), emitted=None) -> dict:
+    """Beauty, albedo and shading normal of one render, as generic-layout channels (`emitted`:
+    per pixel the radiance of the light its centre ray sees, NaN elsewhere)."""
     mi = mitsuba()
     mi.render(scene, spp=spp, seed=seed)
     layers = dict(scene.sensors()[0].film().bitmap().split())
     beauty = np.array(layers["<root>"], dtype=np.float32)
     albedo = np.array(layers["albedo"], dtype=np.float32)
     normal = np.array(layers["nn"], dtype=np.float32)
+    if emitted is None:
+        emitted = np.full(beauty.shape, np.nan, np.float32)
+    albedo = denoiser_albedo(albedo, normal, environment, emitted)
     out = {c: beauty[..., i] for i, c in enumerate("RGB")}
     out["A"] = np.ones(beauty.shape[:2], np.float32)
     out.update({f"albedo.{c}": albedo[..., i] for i, c in enumerate("RGB")})
@@ -78,12 +102,16 @@ def render_scene(spec, out_dir: str, frames, levels: dict, log=print) -> dict:
     returns the manifest it writes (out_dir/manifest.json)."""
     mi = mitsuba()
     manifest_path = os.path.join(out_dir, "manifest.json")
-    manifest = {"seed": spec.seed, "renderer": f"mitsuba {mi.__version__} {mi.variant()}",
+    manifest = {"seed": spec.seed, "generator_version": GENERATOR_VERSION, "renderer": f"mitsuba {mi.__version__} {mi.variant()}",
                 "layout": "<scene>/<level>/frame_####.exr (radn's generic preset)",
                 "resolution": [spec.width, spec.height], "frames": [min(frames), max(frames)],
                 "shot_frames": spec.frames, "scene": spec.description, "levels": {}}
     if os.path.exists(manifest_path):
-        manifest["levels"] = json.load(open(manifest_path)).get("levels", {})
+        old = json.load(open(manifest_path))
+        if old.get("generator_version") != GENERATOR_VERSION:
+            raise SystemExit(f"{out_dir}: rendered by generator version {old.get('generator_version', 1)}, "
+                             f"this is {GENERATOR_VERSION}: render the scene again whole (remove the folder)")
+        manifest["levels"] = old.get("levels", {})
     for frame in frames:
         todo = {lv: spp for lv, spp in levels.items()
                 if not os.path.exists(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"))}
@@ -93,8 +121,8 @@ def render_scene(spec, out_dir: str, frames, levels: dict, log=print) -> dict:
         scene = mi.load_dict(spec.dict_at(frame))
         for lv, spp in todo.items():
             t = time.perf_counter()
-            chans = render_layers(scene, spp, seed_of(spec.seed, lv, frame))
-            chans.update(aux)
+            chans = render_layers(scene, spp, seed_of(spec.seed, lv, frame), spec.environment(), aux["_emitted"])
+            chans.update({k: v for k, v in aux.items() if not k.startswith("_")})
             write_exr(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"), chans)
             secs = time.perf_counter() - t
             info = manifest["levels"].setdefault(lv, {"spp": spp, "seconds": 0.0, "frames": 0})

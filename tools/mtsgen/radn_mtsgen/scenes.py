@@ -78,6 +78,18 @@ class SceneSpec:
         p = self.phase(frame)
         return np.asarray(self.cam_from(p), float), np.asarray(self.cam_to(p), float)
 
+    def environment(self) -> np.ndarray:
+        """The radiance a ray that hits nothing sees (RGB)."""
+        sky = self.emitters.get("sky")
+        return np.asarray(sky["radiance"]["value"], float) if sky else np.zeros(3)
+
+    def emission(self, key: str) -> Optional[np.ndarray]:
+        """The radiance of an emitting object (RGB), None for others."""
+        for o in self.objects:
+            if o.key == key and "emitter" in o.extra:
+                return np.asarray(o.extra["emitter"]["radiance"]["value"], float)
+        return None
+
     def dict_at(self, frame: int, aovs: bool = True) -> dict:
         """Mitsuba's scene dictionary at `frame`."""
         from .backend import mitsuba
@@ -114,6 +126,7 @@ class _Builder:
     def __init__(self, seed: int, tex_dir: str):
         self.rng = np.random.default_rng(seed)
         self.seed = seed
+        self.family = ""
         self.tex_dir = tex_dir
         self.objects: list = []
         self.n = 0
@@ -126,7 +139,7 @@ class _Builder:
         kind = kind or self.rng.choice(list(textures.KINDS))
         arr = textures.make(kind, self.rng)
         os.makedirs(self.tex_dir, exist_ok=True)
-        path = os.path.join(self.tex_dir, f"tex{self.n:03d}_{kind}.exr")
+        path = os.path.join(self.tex_dir, f"{self.seed}_{self.family}_tex{self.n:03d}_{kind}.exr")
         self.n += 1
         mi.Bitmap(arr.astype(np.float32)).write(path)
         return {"type": "bitmap", "filename": path, "filter_type": "bilinear",
@@ -198,6 +211,7 @@ def build(seed: int, frames: int, res: tuple, family: Optional[str] = None, tex_
     b = _Builder(seed, tex_dir)
     r = b.rng
     family = family or str(r.choice(FAMILIES))
+    b.family = family
     sampler = sampler or str(r.choice(["independent", "ldsampler"]))
     emitters: dict = {}
     volume = False
@@ -288,7 +302,7 @@ def build(seed: int, frames: int, res: tuple, family: Optional[str] = None, tex_
             b.add(shape, b.material(0.5), (lambda p, pos=pos, s=s, a0=r.uniform(0, 6.3):
                                            _trs(pos, (0, 0, 1), a0 + spin * p, [s, s, s])))
         if family == "fur":
-            path = os.path.join(tex_dir, "fur.txt")
+            path = os.path.join(tex_dir, f"{seed}_fur.txt")
             _write_fur(r, path, int(r.integers(1500, 4000)))
             colour = r.uniform(0.2, 0.8, 3).tolist()
             b.add({"type": "linearcurve", "filename": path}, {"type": "diffuse", "reflectance": {"type": "rgb", "value": colour}},

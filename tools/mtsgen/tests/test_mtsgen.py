@@ -75,7 +75,6 @@ def test_the_previous_frame_warped_by_the_motion_matches_this_one(family):
     warped = _bilinear(frames[3][0], tx, ty)
     err_warped = np.abs(warped - albedo)[mask].mean()
     err_still = np.abs(frames[3][0] - albedo)[mask].mean()
-    print(family, err_warped, err_still)
     assert err_warped < 0.5 * err_still, (err_warped, err_still)
 
 
@@ -98,3 +97,22 @@ def test_frames_are_in_radns_generic_layout_and_a_seed_renders_the_same_frame(tm
         out = subprocess.run([str(radn), "inspect", str(tmp_path / "a/low/frame_0001.exr")],
                              capture_output=True, text=True, check=True).stdout
         assert "preset detected: generic" in out, out
+
+
+def test_albedo_follows_the_denoiser_convention_where_rays_miss_and_on_lights():
+    s = spec("exterior", res=(64, 40))
+    mi = mitsuba()
+    aux = render.aux_and_motion(s, 2)
+    layers = render.render_layers(mi.load_dict(s.dict_at(2)), 16, 3, s.environment(), aux["_emitted"])
+    albedo = np.stack([layers[f"albedo.{c}"] for c in "RGB"], -1).astype(np.float64)
+    normal = np.stack([layers[f"N.{c}"] for c in "XYZ"], -1).astype(np.float64)
+    sky = (aux["Z"] >= motion.FAR) & (np.linalg.norm(normal, axis=-1) < 1e-3)
+    assert sky.mean() > 0.05, "the camera sees sky"
+    assert np.allclose(albedo[sky], s.environment(), atol=2e-3)
+    interior = spec("interior", res=(64, 40))
+    aux = render.aux_and_motion(interior, 2)
+    lit = ~np.isnan(aux["_emitted"][..., 0])
+    if lit.any():  # a visible light's albedo is its radiance, as Cycles writes it
+        layers = render.render_layers(mi.load_dict(interior.dict_at(2)), 4, 3, interior.environment(), aux["_emitted"])
+        got = np.stack([layers[f"albedo.{c}"] for c in "RGB"], -1).astype(np.float64)
+        assert np.allclose(got[lit], aux["_emitted"][lit], rtol=2e-3)
