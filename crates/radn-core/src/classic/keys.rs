@@ -37,22 +37,6 @@ pub const KEYS: &[(&str, &str)] = &[
         "box radius of that comparison",
     ),
     ("classic.demodulate", "filter beauty / albedo: on|off"),
-    (
-        "classic.input-blend",
-        "keep the input where the result changed it beyond its noise: on|off",
-    ),
-    (
-        "classic.input-noise-scale",
-        "noise variances of change the result may make to the input",
-    ),
-    (
-        "classic.input-noise-quantile",
-        "quantile of a brightness band's local spread taken as its noise",
-    ),
-    (
-        "classic.input-noise-ceiling",
-        "the window's noise measure at most this many times the fitted one",
-    ),
 ];
 
 impl ClassicDenoiser {
@@ -94,27 +78,6 @@ impl ClassicDenoiser {
                 }
             }
             "classic.demodulate" => p.demodulate = on_off(value)?,
-            "classic.input-blend" => {
-                p.input_blend = on_off(value)?.then(|| p.input_blend.unwrap_or_default());
-            }
-            "classic.input-noise-scale"
-            | "classic.input-noise-quantile"
-            | "classic.input-noise-ceiling" => {
-                let Some(b) = p.input_blend.as_mut() else {
-                    return Err(bad("the input blend is off (classic.input-blend=on first)"));
-                };
-                if key == "classic.input-noise-scale" {
-                    b.blend.noise_scale = num(value)?;
-                } else if key == "classic.input-noise-ceiling" {
-                    b.ceiling = num(value)?;
-                } else {
-                    let q = num(value)?;
-                    if q >= 1.0 {
-                        return Err(bad("a quantile is below 1"));
-                    }
-                    b.quantile = q;
-                }
-            }
             _ => {
                 return Err(format!(
                     "--tune {key}: no such key (radn denoise --tune help lists them)"
@@ -129,7 +92,6 @@ impl ClassicDenoiser {
         let p = &self.params;
         let on = |b: bool| if b { "on" } else { "off" }.to_string();
         let blend = p.guided_blend.unwrap_or_default();
-        let input = p.input_blend.unwrap_or_default();
         Some(match key {
             "classic.radius" => self.radius.to_string(),
             "classic.search-radius" => p.nlm.search_radius.to_string(),
@@ -141,10 +103,6 @@ impl ClassicDenoiser {
             "classic.guided-noise-scale" => blend.noise_scale.to_string(),
             "classic.guided-blend-radius" => blend.radius.to_string(),
             "classic.demodulate" => on(p.demodulate),
-            "classic.input-blend" => on(p.input_blend.is_some()),
-            "classic.input-noise-scale" => input.blend.noise_scale.to_string(),
-            "classic.input-noise-quantile" => input.quantile.to_string(),
-            "classic.input-noise-ceiling" => input.ceiling.to_string(),
             _ => return None,
         })
     }

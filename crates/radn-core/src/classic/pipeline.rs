@@ -12,13 +12,10 @@ use super::temporal::{apply_weights, robust_weights, temporal_variance};
 use crate::align::confidence::box3;
 use crate::align::motion::invert;
 use crate::align::{align_window, AlignParams};
-use crate::image::noise_model::NoiseModel;
 use crate::image::ops::box_mean;
 use crate::image::plane::Plane;
 use crate::io::frame::Frame;
-use crate::post::wiener::{
-    blend, blend_weight, local_variance, window_noise_variance, BlendParams,
-};
+use crate::post::wiener::{blend, blend_weight, local_variance, BlendParams};
 
 /// All options of the classic denoiser.
 #[derive(Clone, Copy, Debug)]
@@ -36,34 +33,6 @@ pub struct ClassicParams {
     pub guided_blend: Option<BlendParams>,
     /// Filter colour divided by albedo (texture detail is then kept by remodulation).
     pub demodulate: bool,
-    /// The result blended with the noisy input by the input's fitted noise, last: where the
-    /// denoiser changed the input by more than its noise explains (detail it averaged away), the
-    /// input is kept, so the result does not end below a clean input (None: off).
-    pub input_blend: Option<InputBlendParams>,
-}
-
-/// The final blend with the input ([`ClassicParams::input_blend`]).
-#[derive(Clone, Copy, Debug)]
-pub struct InputBlendParams {
-    /// The Wiener blend's box radius and noise scale.
-    pub blend: BlendParams,
-    /// Which quantile of a luminance band's local spread is its noise ([`NoiseModel::fit`]).
-    pub quantile: f32,
-    /// The window's measure of the input's noise is capped at this many times the fitted one.
-    pub ceiling: f32,
-}
-
-impl Default for InputBlendParams {
-    fn default() -> Self {
-        Self {
-            blend: BlendParams {
-                radius: 1,
-                noise_scale: 1.0,
-            },
-            quantile: 0.1,
-            ceiling: 4.0,
-        }
-    }
 }
 
 impl Default for ClassicParams {
@@ -75,7 +44,6 @@ impl Default for ClassicParams {
             guided: Some(GuidedParams::default()),
             guided_blend: Some(BlendParams::default()),
             demodulate: true,
-            input_blend: Some(InputBlendParams::default()),
         }
     }
 }
@@ -272,30 +240,7 @@ pub fn denoise_window(window: &[Option<&Frame>], p: &ClassicParams) -> ClassicRe
             }
         })
         .collect();
-    let mut alpha = t_alpha.map(|_| it.next().expect("alpha is the last signal"));
-    let mut color = color;
-    let mut aovs = aovs;
-    if let Some(ib) = &p.input_blend {
-        if let Some(model) = NoiseModel::fit(&centre.color, ib.quantile) {
-            // the input's noise measured over the window, where frames align; never above
-            // `ceiling` times the fitted model, which detail (or misalignment) cannot inflate
-            let mut variance = window_noise_variance(&aligned, 0..h);
-            let fitted = model.variance(&centre.color);
-            variance
-                .data_mut()
-                .par_iter_mut()
-                .zip(fitted.data())
-                .for_each(|(v, m)| *v = v.min(ib.ceiling * m));
-            let weight = blend_weight(&centre.color, &color, &variance, &ib.blend);
-            color = blend(&centre.color, &color, &weight);
-            for (a, input) in aovs.iter_mut().zip(&centre.aovs) {
-                *a = blend(input, a, &weight);
-            }
-            if let (Some(a), Some(input)) = (alpha.as_mut(), centre.alpha.as_ref()) {
-                *a = blend(input, a, &weight);
-            }
-        }
-    }
+    let alpha = t_alpha.map(|_| it.next().expect("alpha is the last signal"));
     debug_assert!(color.width() == w && color.height() == h);
     ClassicResult {
         color,

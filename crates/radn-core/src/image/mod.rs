@@ -1,7 +1,6 @@
-//! Image planes and the operations on them: the plane type, box filters and luminance, a frame's noise level and its noise model.
+//! Image planes and the operations on them: the plane type, box filters and luminance, a frame's noise level.
 
 pub mod noise_level;
-pub mod noise_model;
 pub mod ops;
 pub mod plane;
 pub mod stats;

@@ -16,7 +16,6 @@ use std::ops::Range;
 
 use crate::align::AlignedWindow;
 use crate::classic::temporal::{apply_weights, temporal_variance};
-pub use crate::image::noise_model::local_variance;
 use crate::image::ops::box_mean;
 use crate::image::plane::Plane;
 
@@ -43,6 +42,21 @@ impl Default for BlendParams {
 
 /// How far [`local_variance`] reads around a pixel (its two boxes), in pixels.
 pub const LOCAL_VARIANCE_RADIUS: usize = 3;
+
+/// A frame's per-pixel, per-channel noise variance from its own neighbourhood: the squared
+/// difference to the 3×3 mean, averaged over 5×5 (and corrected for the 9 samples of the mean).
+/// Detail reads as noise here: it is the fallback where no other frame can be trusted.
+pub fn local_variance(x: &Plane) -> Plane {
+    let m = box_mean(x, 1);
+    let mut d = x.clone();
+    d.data_mut()
+        .iter_mut()
+        .zip(m.data())
+        .for_each(|(v, mu)| *v = (*v - mu) * (*v - mu));
+    let mut v = box_mean(&d, 2);
+    v.data_mut().iter_mut().for_each(|v| *v *= 9.0 / 8.0);
+    v
+}
 
 /// The per-pixel, per-channel noise variance of the centre frame's colour at rows `rows` of an
 /// aligned window: the unbiased spread of the frames' colour, each weighted by its alignment
