@@ -29,12 +29,15 @@ LAYOUTS = {
 
 
 def layout_of(channels, src):
-    """The layout whose beauty, albedo and normal channels are all in `channels`."""
-    for name, groups in LAYOUTS.items():
-        if all(c in channels for g in groups for c in g):
-            return name
-    raise OidnInputError(f"{src}: neither Cycles' beauty, denoising albedo and normal nor the generic "
-                         "layout's R,G,B / albedo.* / N.* (OIDN needs a beauty, albedo and normal)")
+    """The layout whose beauty, albedo and normal channels are all in `channels`; else an error
+    naming what the closest layout lacks."""
+    missing = {name: [c for g in groups for c in g if c not in channels] for name, groups in LAYOUTS.items()}
+    name = min(missing, key=lambda n: len(missing[n]))
+    if missing[name]:
+        raise OidnInputError(f"{src}: missing channel {', '.join(missing[name])} (OIDN needs a beauty, albedo "
+                             f"and normal: Cycles' Combined, Denoising Albedo and Denoising Normal, or the "
+                             f"generic layout's R,G,B, albedo.* and N.*)")
+    return name
 
 
 class OidnInputError(Exception):
