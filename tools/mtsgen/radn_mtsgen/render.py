@@ -39,8 +39,9 @@ def write_exr(path: str, channels: dict) -> None:
 
 
 def aux_and_motion(spec, frame):
-    """Depth and motion towards both neighbours for `frame` (null-material shapes, smoke's
-    bounds, are left out: rays pass through them)."""
+    """Depth and motion towards both neighbours for `frame` (channels), and per pixel the
+    radiance of the light its centre ray sees (NaN elsewhere). Null-material shapes, smoke's
+    bounds, are left out: rays pass through them."""
     mi = mitsuba()
     d = spec.dict_at(frame, aovs=False)
     for key, value in list(d.items()):
@@ -57,11 +58,10 @@ def aux_and_motion(spec, frame):
         if radiance is not None:
             emitted[keys == key] = radiance
     return {
-        "_emitted": emitted.reshape(h, w, 3),
         "Z": dist.reshape(h, w).astype(np.float32),
         "motion.X": prev[..., 0].astype(np.float32), "motion.Y": prev[..., 1].astype(np.float32),
         "motion_next.X": nxt[..., 0].astype(np.float32), "motion_next.Y": nxt[..., 1].astype(np.float32),
-    }
+    }, emitted.reshape(h, w, 3)
 
 
 def denoiser_albedo(albedo, normal, environment, emitted):
@@ -117,12 +117,12 @@ def render_scene(spec, out_dir: str, frames, levels: dict, log=print) -> dict:
                 if not os.path.exists(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"))}
         if not todo:
             continue
-        aux = aux_and_motion(spec, frame)
+        aux, emitted = aux_and_motion(spec, frame)
         scene = mi.load_dict(spec.dict_at(frame))
         for lv, spp in todo.items():
             t = time.perf_counter()
-            chans = render_layers(scene, spp, seed_of(spec.seed, lv, frame), spec.environment(), aux["_emitted"])
-            chans.update({k: v for k, v in aux.items() if not k.startswith("_")})
+            chans = render_layers(scene, spp, seed_of(spec.seed, lv, frame), spec.environment(), emitted)
+            chans.update(aux)
             write_exr(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"), chans)
             secs = time.perf_counter() - t
             info = manifest["levels"].setdefault(lv, {"spp": spp, "seconds": 0.0, "frames": 0})

@@ -58,7 +58,7 @@ def test_the_previous_frame_warped_by_the_motion_matches_this_one(family):
     for f in (3, 4):
         layers = render.render_layers(mi.load_dict(s.dict_at(f)), 64, 7)
         albedo = np.stack([layers[f"albedo.{c}"] for c in "RGB"], -1).astype(np.float64)
-        frames[f] = (albedo, render.aux_and_motion(s, f))
+        frames[f] = (albedo, render.aux_and_motion(s, f)[0])
     albedo, aux = frames[4]
     mx, my = aux["motion.X"], aux["motion.Y"]
     h, w = mx.shape
@@ -108,17 +108,17 @@ def test_frames_are_in_radns_generic_layout_and_a_seed_renders_the_same_frame(tm
 def test_albedo_follows_the_denoiser_convention_where_rays_miss_and_on_lights():
     s = spec("exterior", res=(64, 40))
     mi = mitsuba()
-    aux = render.aux_and_motion(s, 2)
-    layers = render.render_layers(mi.load_dict(s.dict_at(2)), 16, 3, s.environment(), aux["_emitted"])
+    aux, emitted = render.aux_and_motion(s, 2)
+    layers = render.render_layers(mi.load_dict(s.dict_at(2)), 16, 3, s.environment(), emitted)
     albedo = np.stack([layers[f"albedo.{c}"] for c in "RGB"], -1).astype(np.float64)
     normal = np.stack([layers[f"N.{c}"] for c in "XYZ"], -1).astype(np.float64)
     sky = (aux["Z"] >= motion.FAR) & (np.linalg.norm(normal, axis=-1) < 1e-3)
     assert sky.mean() > 0.05, "the camera sees sky"
     assert np.allclose(albedo[sky], s.environment(), atol=2e-3)
     interior = spec("interior", res=(64, 40))
-    aux = render.aux_and_motion(interior, 2)
-    lit = ~np.isnan(aux["_emitted"][..., 0])
+    _, emitted = render.aux_and_motion(interior, 2)
+    lit = ~np.isnan(emitted[..., 0])
     if lit.any():  # a visible light's albedo is its radiance, as Cycles writes it
-        layers = render.render_layers(mi.load_dict(interior.dict_at(2)), 4, 3, interior.environment(), aux["_emitted"])
+        layers = render.render_layers(mi.load_dict(interior.dict_at(2)), 4, 3, interior.environment(), emitted)
         got = np.stack([layers[f"albedo.{c}"] for c in "RGB"], -1).astype(np.float64)
-        assert np.allclose(got[lit], aux["_emitted"][lit], rtol=2e-3)
+        assert np.allclose(got[lit], emitted[lit], rtol=2e-3)
