@@ -110,9 +110,16 @@ pub fn timed<T>(stage: Stage, f: impl FnOnce() -> T) -> T {
     out
 }
 
-/// This thread's tally since the last call, cleared.
+/// This thread's tally since the last call, cleared; each stage is also added to the run's
+/// sums ([`radn_core::run::timing`]).
 pub fn take() -> StageTimes {
-    TALLY.with(|t| std::mem::take(&mut *t.borrow_mut()))
+    let times = TALLY.with(|t| std::mem::take(&mut *t.borrow_mut()));
+    for s in STAGES {
+        if times.get(s) > Duration::ZERO {
+            radn_core::run::timing::add(s.name(), times.get(s));
+        }
+    }
+    times
 }
 
 #[cfg(test)]

@@ -6,8 +6,11 @@
 //! frame) or Intel Open Image Denoise run on each frame ([`OidnGuides`], computed once per
 //! frame from the sequence's original input files, whatever pass is running).
 
+pub mod exposure;
 pub mod oidn;
+pub mod oidn_settings;
 
+use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
 
@@ -15,7 +18,9 @@ use crate::error::{Error, Result};
 use crate::image::plane::Plane;
 use crate::io::frame::{Frame, FrameReader};
 
-pub use oidn::{OidnDenoiser, OidnError};
+pub use exposure::ExposureBins;
+pub use oidn::{GuideTimes, OidnDenoiser, OidnError};
+pub use oidn_settings::{OidnQuality, OidnSettings, Prefilter};
 
 /// Where each frame's guide comes from, as a user names it (`--guide oidn|denoised|LAYER|none`).
 #[derive(Clone, Debug, Default, PartialEq, Eq)]
@@ -62,7 +67,14 @@ impl GuideChoice {
 /// uses every thread it was given), computed from the original input files.
 pub struct OidnGuides {
     denoiser: Mutex<OidnDenoiser>,
+    settings: Mutex<OidnSettings>,
 }
+
+/// Rows of a frame filtered together when a guide is made band by band: about this many pixels
+/// per OIDN call (plus its halo), which bounds the images radn hands OIDN.
+const BAND_PIXELS: usize = 4 << 20;
+/// OIDN's scratch memory per filter when a guide is made band by band (it tiles within that).
+const BAND_OIDN_MEMORY_MB: usize = 1024;
 
 impl OidnGuides {
     /// Opens OIDN with `threads` threads (0: every core); fails with a message saying what
@@ -74,15 +86,23 @@ impl OidnGuides {
         })?;
         Ok(Self {
             denoiser: Mutex::new(d),
+            settings: Mutex::new(OidnSettings::default()),
         })
+    }
+
+    /// Makes every later guide with `settings` (a guided model's recipe holds them).
+    pub fn configure(&self, settings: OidnSettings) {
+        *lock(&self.settings) = settings;
+    }
+
+    /// The settings guides are made with.
+    pub fn settings(&self) -> OidnSettings {
+        *lock(&self.settings)
     }
 
     /// The library in use, for messages: "Intel Open Image Denoise 2.5.1 (PATH)".
     pub fn describe(&self) -> String {
-        let d = self
-            .denoiser
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner());
+        let d = lock(&self.denoiser);
         format!(
             "Intel Open Image Denoise {} ({})",
             d.version(),
@@ -92,15 +112,18 @@ impl OidnGuides {
 
     /// The guide of `frame` (its beauty, albedo and normal as read from `path`).
     pub fn of_frame(&self, frame: &Frame, path: &Path) -> Result<Plane> {
-        let mut d = self
-            .denoiser
-            .lock()
-            .unwrap_or_else(|poisoned| poisoned.into_inner());
-        d.denoise(&frame.color, frame.albedo.as_ref(), frame.normal.as_ref())
-            .map_err(|e| Error::Guide {
-                path: path.to_path_buf(),
-                detail: e.to_string(),
-            })
+        let settings = self.settings();
+        let mut d = lock(&self.denoiser);
+        let (guide, times) = d
+            .denoise_with(
+                &frame.color,
+                frame.albedo.as_ref(),
+                frame.normal.as_ref(),
+                &settings,
+            )
+            .map_err(|e| guide_error(path, e))?;
+        record(path, times);
+        Ok(guide)
     }
 
     /// The guide of the frame in the file at `path`, read whole by `reader`.
@@ -108,6 +131,101 @@ impl OidnGuides {
         let (frame, _) = reader.read(path)?;
         self.of_frame(&frame, path)
     }
+
+    /// The guide of a `width × height` frame made band by band, so that memory follows the
+    /// band rather than the frame: `read` gives rows of the frame (its beauty, albedo and
+    /// normal) and `write` takes the guide's rows from their first row. Every band is
+    /// filtered at the whole frame's exposure (a first pass over its rows), with OIDN's own
+    /// tile overlap as halo and its scratch memory bounded; the result differs from the
+    /// whole frame's guide only where OIDN's tiles would
+    /// (`a_guide_made_in_bands_matches_the_whole_frames`).
+    pub fn of_rows(
+        &self,
+        path: &Path,
+        (width, height): (usize, usize),
+        mut read: impl FnMut(Range<usize>) -> Result<Frame>,
+        mut write: impl FnMut(usize, &Plane) -> Result<()>,
+    ) -> Result<()> {
+        self.of_rows_in(
+            path,
+            (width, height),
+            band_rows(width),
+            &mut read,
+            &mut write,
+        )
+    }
+
+    /// [`OidnGuides::of_rows`] in bands of `band` rows.
+    pub fn of_rows_in(
+        &self,
+        path: &Path,
+        (width, height): (usize, usize),
+        band: usize,
+        read: &mut dyn FnMut(Range<usize>) -> Result<Frame>,
+        write: &mut dyn FnMut(usize, &Plane) -> Result<()>,
+    ) -> Result<()> {
+        let band = band.max(1);
+        let mut bins = ExposureBins::new(width, height);
+        for y0 in (0..height).step_by(band) {
+            bins.add_rows(y0, &read(y0..(y0 + band).min(height))?.color);
+        }
+        let settings = self.settings();
+        let mut d = lock(&self.denoiser);
+        let halo = d
+            .tile_overlap(settings.quality)
+            .map_err(|e| guide_error(path, e))?;
+        d.set_input_scale(Some(bins.exposure()));
+        d.set_max_memory_mb(Some(BAND_OIDN_MEMORY_MB));
+        let result = (|| {
+            let mut times = GuideTimes::default();
+            for y0 in (0..height).step_by(band) {
+                let out = y0..(y0 + band).min(height);
+                let rows = y0.saturating_sub(halo)..(out.end + halo).min(height);
+                let f = read(rows.clone())?;
+                let (g, t) = d
+                    .denoise_with(&f.color, f.albedo.as_ref(), f.normal.as_ref(), &settings)
+                    .map_err(|e| guide_error(path, e))?;
+                times = times.plus(t);
+                write(y0, &g.rows(out.start - rows.start..out.end - rows.start))?;
+            }
+            Ok(times)
+        })();
+        d.set_input_scale(None);
+        d.set_max_memory_mb(None);
+        record(path, result?);
+        Ok(())
+    }
+}
+
+/// Rows per guide band of a frame `width` wide.
+fn band_rows(width: usize) -> usize {
+    (BAND_PIXELS / width.max(1)).max(64)
+}
+
+fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
+    m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+fn guide_error(path: &Path, e: OidnError) -> Error {
+    Error::Guide {
+        path: path.to_path_buf(),
+        detail: e.to_string(),
+    }
+}
+
+/// Logs one guide's time and adds it to the run's stages.
+fn record(path: &Path, times: GuideTimes) {
+    tracing::debug!(
+        "{}: OIDN guide {:.2} s (prefilters {:.2} s, beauty {:.2} s)",
+        path.display(),
+        (times.prefilters + times.beauty).as_secs_f64(),
+        times.prefilters.as_secs_f64(),
+        times.beauty.as_secs_f64()
+    );
+    if !times.prefilters.is_zero() {
+        crate::run::timing::add("OIDN prefilters", times.prefilters);
+    }
+    crate::run::timing::add("OIDN beauty", times.beauty);
 }
 
 /// How a sequence job gets its frames' guides beyond what its reader reads.

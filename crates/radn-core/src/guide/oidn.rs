@@ -10,24 +10,44 @@
 //! `python3` (`bpy/lib/`), and the one beside a `blender` on `PATH` (Blender 4.x bundles
 //! OIDN 2.x). Each library finds its core and device modules in its own folder.
 //!
-//! Each frame is filtered as OIDN recommends for final frames: the albedo and the normal are
-//! denoised first, each by its own `RT` filter, and the beauty filter (HDR) then runs with
-//! `cleanAux` on. This is the "prefiltered" mode of `tools/datagen` (`radn_datagen oidn`), so
-//! the guides radn computes equal those of the training data.
+//! By default each frame is filtered as OIDN recommends for final frames: the albedo and the
+//! normal are denoised first, each by its own `RT` filter, and the beauty filter (HDR) then runs
+//! with `cleanAux` on. This is the "prefiltered" mode of `tools/datagen` (`radn_datagen oidn`),
+//! so the guides radn computes equal those of the training data. [`OidnSettings`] choose other
+//! qualities, or the noisy auxiliaries without prefilters.
 
 use std::ffi::{c_char, c_int, c_void, CStr, CString};
 use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
 
+use super::oidn_settings::{OidnQuality, OidnSettings};
 use crate::image::plane::Plane;
 
 /// An OIDN device type: the CPU.
 const DEVICE_TYPE_CPU: c_int = 1;
 /// OIDN's `OIDN_FORMAT_FLOAT3`.
 const FORMAT_FLOAT3: c_int = 3;
-/// OIDN's `OIDN_QUALITY_HIGH` (final-frame quality).
-const QUALITY_HIGH: c_int = 6;
 /// The oldest OIDN whose C API this module speaks (2.0.0, as `major*10000 + minor*100 + patch`).
 const OLDEST_VERSION: c_int = 20000;
+
+/// Where one guide's time went.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct GuideTimes {
+    /// The albedo and normal prefilters.
+    pub prefilters: Duration,
+    /// The beauty filter.
+    pub beauty: Duration,
+}
+
+impl GuideTimes {
+    /// The sum of `self` and `other`.
+    pub fn plus(self, other: Self) -> Self {
+        Self {
+            prefilters: self.prefilters + other.prefilters,
+            beauty: self.beauty + other.beauty,
+        }
+    }
+}
 
 /// Why OIDN could not be used: the message says what to install or what failed.
 #[derive(Debug, thiserror::Error)]
@@ -76,6 +96,8 @@ type SetSharedFilterImage = unsafe extern "C" fn(
 type UnsetFilterImage = unsafe extern "C" fn(*mut c_void, *const c_char);
 type SetFilterBool = unsafe extern "C" fn(*mut c_void, *const c_char, bool);
 type SetFilterInt = unsafe extern "C" fn(*mut c_void, *const c_char, c_int);
+type GetFilterInt = unsafe extern "C" fn(*mut c_void, *const c_char) -> c_int;
+type SetFilterFloat = unsafe extern "C" fn(*mut c_void, *const c_char, f32);
 
 /// The C functions radn calls, resolved once from the library.
 struct Api {
@@ -93,6 +115,8 @@ struct Api {
     unset_filter_image: UnsetFilterImage,
     set_filter_bool: SetFilterBool,
     set_filter_int: SetFilterInt,
+    get_filter_int: GetFilterInt,
+    set_filter_float: SetFilterFloat,
 }
 
 impl Api {
@@ -119,6 +143,8 @@ impl Api {
             unset_filter_image: get(lib, "oidnUnsetFilterImage")?,
             set_filter_bool: get(lib, "oidnSetFilterBool")?,
             set_filter_int: get(lib, "oidnSetFilterInt")?,
+            get_filter_int: get(lib, "oidnGetFilterInt")?,
+            set_filter_float: get(lib, "oidnSetFilterFloat")?,
         })
     }
 }
@@ -228,6 +254,10 @@ pub struct OidnDenoiser {
     device: *mut c_void,
     /// Albedo, normal and beauty filters, created when first used.
     filters: [*mut c_void; 3],
+    /// The beauty's exposure; `None`: OIDN's autoexposure.
+    input_scale: Option<f32>,
+    /// OIDN's scratch memory bound per filter.
+    max_memory_mb: Option<usize>,
     version: c_int,
     /// The library file that was opened.
     path: PathBuf,
@@ -270,6 +300,8 @@ impl OidnDenoiser {
             api,
             device,
             filters: [std::ptr::null_mut(); 3],
+            input_scale: None,
+            max_memory_mb: None,
             version: 0,
             path,
             _lib: lib,
@@ -349,14 +381,14 @@ impl OidnDenoiser {
     }
 
     /// Runs filter `role` (0 albedo, 1 normal, 2 beauty) on interleaved RGB images `images`
-    /// (name, data), all `w × h`, with boolean parameters `flags`.
+    /// (name, data), all `w × h`, with boolean parameters `flags`, at `quality`.
     fn run(
         &mut self,
         role: usize,
-        w: usize,
-        h: usize,
+        (w, h): (usize, usize),
         images: &mut [(&str, &mut [f32])],
         flags: &[(&str, bool)],
+        quality: OidnQuality,
     ) -> Result<(), OidnError> {
         let stage = [
             "the albedo filter",
@@ -398,7 +430,21 @@ impl OidnDenoiser {
             for (name, value) in flags {
                 (self.api.set_filter_bool)(f, c(name).as_ptr(), *value);
             }
-            (self.api.set_filter_int)(f, c("quality").as_ptr(), QUALITY_HIGH);
+            (self.api.set_filter_int)(f, c("quality").as_ptr(), quality.code());
+            // the HDR beauty's exposure: the frame's where a band is filtered, else OIDN's own
+            if role == 2 {
+                (self.api.set_filter_float)(
+                    f,
+                    c("inputScale").as_ptr(),
+                    self.input_scale.unwrap_or(f32::NAN),
+                );
+            }
+            (self.api.set_filter_int)(
+                f,
+                c("maxMemoryMB").as_ptr(),
+                self.max_memory_mb
+                    .map_or(-1, |m| m.min(c_int::MAX as usize) as c_int),
+            );
             (self.api.commit_filter)(f);
         }
         self.check(stage)?;
@@ -414,15 +460,60 @@ impl OidnDenoiser {
     }
 
     /// OIDN's estimate of the HDR beauty `color` (RGB) with its noisy auxiliaries, both
-    /// prefiltered first (albedo without normal is allowed; a normal needs the albedo).
-    /// Negative colour is clamped to 0, the albedo to [0, 1] and the normal to [−1, 1], as
-    /// OIDN expects.
+    /// prefiltered first at high quality (OIDN's final-frame mode).
     pub fn denoise(
         &mut self,
         color: &Plane,
         albedo: Option<&Plane>,
         normal: Option<&Plane>,
     ) -> Result<Plane, OidnError> {
+        self.denoise_with(color, albedo, normal, &OidnSettings::default())
+            .map(|(p, _)| p)
+    }
+
+    /// Sets the HDR beauty's exposure (OIDN's `inputScale`) for the filterings that follow;
+    /// `None`: OIDN's own autoexposure of each image it is given. A frame filtered band by
+    /// band needs the whole frame's ([`super::exposure::ExposureBins`]).
+    pub fn set_input_scale(&mut self, scale: Option<f32>) {
+        self.input_scale = scale;
+    }
+
+    /// Bounds OIDN's scratch memory per filter (`maxMemoryMB`; it then filters in overlapping
+    /// tiles of its own); `None`: OIDN's default.
+    pub fn set_max_memory_mb(&mut self, mb: Option<usize>) {
+        self.max_memory_mb = mb;
+    }
+
+    /// How many rows of context OIDN itself keeps around a tile (`tileOverlap` of its beauty
+    /// filter at `quality`): the halo a band needs to be filtered as within the whole frame.
+    pub fn tile_overlap(&mut self, quality: OidnQuality) -> Result<usize, OidnError> {
+        let mut px = vec![0.0f32; 3 * 16 * 16];
+        let mut out = vec![0.0f32; 3 * 16 * 16];
+        // a filter is only sized once committed with images
+        self.run(
+            2,
+            (16, 16),
+            &mut [("color", &mut px), ("output", &mut out)],
+            &[("hdr", true)],
+            quality,
+        )?;
+        let c = CString::new("tileOverlap").expect("no NUL");
+        // SAFETY: a live, committed filter.
+        let v = unsafe { (self.api.get_filter_int)(self.filters[2], c.as_ptr()) };
+        self.check("reading the beauty filter's tile overlap")?;
+        Ok(v.max(0) as usize)
+    }
+
+    /// [`OidnDenoiser::denoise`] with `settings`, and the time its filters took. Albedo
+    /// without normal is allowed; a normal needs the albedo. Negative colour is clamped to 0,
+    /// the albedo to [0, 1] and the normal to [−1, 1], as OIDN expects.
+    pub fn denoise_with(
+        &mut self,
+        color: &Plane,
+        albedo: Option<&Plane>,
+        normal: Option<&Plane>,
+        settings: &OidnSettings,
+    ) -> Result<(Plane, GuideTimes), OidnError> {
         let (w, h) = (color.width(), color.height());
         for (p, what) in [(albedo, "albedo"), (normal, "normal")] {
             if let Some(p) = p {
@@ -446,15 +537,34 @@ impl OidnDenoiser {
         let mut out = vec![0.0f32; col.len()];
         let mut alb = albedo.map(|p| interleave(p, |v| v.clamp(0.0, 1.0)));
         let mut nrm = normal.map(|p| interleave(p, |v| v.clamp(-1.0, 1.0)));
-        let mut scratch = vec![0.0f32; col.len()];
-        if let Some(a) = alb.as_mut() {
-            self.run(0, w, h, &mut [("albedo", a), ("output", &mut scratch)], &[])?;
-            std::mem::swap(a, &mut scratch);
+        let mut times = GuideTimes::default();
+        if let Some(q) = settings.prefilter.quality() {
+            let started = Instant::now();
+            let mut scratch = vec![0.0f32; col.len()];
+            if let Some(a) = alb.as_mut() {
+                self.run(
+                    0,
+                    (w, h),
+                    &mut [("albedo", a), ("output", &mut scratch)],
+                    &[],
+                    q,
+                )?;
+                std::mem::swap(a, &mut scratch);
+            }
+            if let Some(n) = nrm.as_mut() {
+                self.run(
+                    1,
+                    (w, h),
+                    &mut [("normal", n), ("output", &mut scratch)],
+                    &[],
+                    q,
+                )?;
+                std::mem::swap(n, &mut scratch);
+            }
+            times.prefilters = started.elapsed();
         }
-        if let Some(n) = nrm.as_mut() {
-            self.run(1, w, h, &mut [("normal", n), ("output", &mut scratch)], &[])?;
-            std::mem::swap(n, &mut scratch);
-        }
+        let started = Instant::now();
+        let clean = settings.prefilter.quality().is_some() && (alb.is_some() || nrm.is_some());
         let mut images: Vec<(&str, &mut [f32])> = vec![("color", &mut col)];
         if let Some(a) = alb.as_mut() {
             images.push(("albedo", a));
@@ -463,8 +573,10 @@ impl OidnDenoiser {
             images.push(("normal", n));
         }
         images.push(("output", &mut out));
-        self.run(2, w, h, &mut images, &[("hdr", true), ("cleanAux", true)])?;
-        Ok(deinterleave(w, h, &out))
+        let flags = [("hdr", true), ("cleanAux", clean)];
+        self.run(2, (w, h), &mut images, &flags, settings.quality)?;
+        times.beauty = started.elapsed();
+        Ok((deinterleave(w, h, &out), times))
     }
 }
 

@@ -180,7 +180,7 @@ impl WindowDenoiser for TemporalStabilizer {
     }
 
     fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised> {
-        self.stabilize(window)
+        crate::run::timing::timed("temporal pass", || self.stabilize(window))
     }
 }
 

@@ -278,6 +278,7 @@ impl SequenceJob {
             let file = windows.take_file(pos).expect("each frame is written once");
             let names = self.output_names(windows.frame(pos));
             write_result(file, &names, &out, output, self.output_kind)?;
+            super::timing::add("writing", writing.elapsed());
             drop(claim);
             tracing::debug!(
                 "{}: {:.1} s, of which decoding the frames new to this window {:.1} s, \
@@ -354,13 +355,27 @@ impl SequenceJob {
                     decoded.insert(k, store.expect("a frame has rows"));
                 }
             }
+            super::timing::add("decoding (bands)", gathering.elapsed());
             if let JobGuides::Oidn { guides, originals } = &self.guides {
                 for &k in idx.iter().flatten() {
                     if let std::collections::btree_map::Entry::Vacant(e) = oidn.entry(k) {
-                        let guide = guides.of_file(&self.reader, &originals[k])?;
+                        // band by band too: from the decoded rows where they are the original's
                         let path = &self.inputs[k].1;
-                        let store = RowStore::new(path, width, height, vec![guide.channels()])?;
-                        store.write_rows(0, &[&guide])?;
+                        let store = RowStore::new(path, width, height, vec![3])?;
+                        let own = &decoded[&k];
+                        let original = &originals[k];
+                        guides.of_rows(
+                            original,
+                            (width, height),
+                            |rows| {
+                                if original == path {
+                                    own.read(rows)
+                                } else {
+                                    self.reader.read_rows(original, rows)
+                                }
+                            },
+                            |y0, g| store.write_rows(y0, &[g]),
+                        )?;
                         e.insert(store);
                     }
                 }
@@ -449,6 +464,8 @@ impl SequenceJob {
             )?;
             drop(claim);
             let total = started.elapsed();
+            super::timing::add("reading bands", reading);
+            super::timing::add("writing", total - reading - denoising);
             tracing::debug!(
                 "{}: {:.1} s, of which reading bands {:.1} s, denoising {:.1} s, writing {:.1} s \
                  (and {:.1} s before, for decoding the frames new to this window with their \

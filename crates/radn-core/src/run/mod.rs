@@ -7,4 +7,5 @@ pub mod denoiser;
 pub mod job;
 pub mod passes;
 pub mod row_store;
+pub mod timing;
 pub mod window;

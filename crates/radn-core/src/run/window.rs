@@ -86,7 +86,8 @@ impl<'a> WindowReader<'a> {
         self.frames.retain(|&k, _| k + reach >= pos);
         for k in pos.saturating_sub(reach)..(pos + reach + 1).min(self.files.len()) {
             if let std::collections::btree_map::Entry::Vacant(e) = self.frames.entry(k) {
-                let (mut frame, file) = self.reader.read(&self.files[k])?;
+                let (mut frame, file) =
+                    super::timing::timed("decoding", || self.reader.read(&self.files[k]))?;
                 let (w, h) = *self.size.get_or_insert((frame.width(), frame.height()));
                 frame.ensure_size(w, h)?;
                 if let JobGuides::Oidn { guides, originals } = &self.guides {

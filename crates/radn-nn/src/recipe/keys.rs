@@ -11,6 +11,14 @@ use crate::infer::input_blend::InputBlend;
 /// The keys a recipe takes, each with what its value means.
 pub const KEYS: &[(&str, &str)] = &[
     (
+        "guide.quality",
+        "OIDN guide's beauty filter: high|balanced|fast",
+    ),
+    (
+        "guide.prefilter",
+        "OIDN guide's albedo/normal prefilters: high|balanced|fast|off",
+    ),
+    (
         "threshold",
         "kernel threshold t (paper eq. 3), below 1/taps; auto: the model's",
     ),
@@ -89,6 +97,10 @@ impl Recipe {
         };
         let whole = |v: &str| v.parse::<usize>().map_err(|_| bad("not a whole number"));
         match key {
+            "guide.quality" => self.guide.quality = value.parse().map_err(|e: String| bad(&e))?,
+            "guide.prefilter" => {
+                self.guide.prefilter = value.parse().map_err(|e: String| bad(&e))?
+            }
             "threshold" => {
                 self.threshold = match value.parse::<Setting<f32>>().map_err(|e| bad(&e))? {
                     Setting::Auto => None,
@@ -195,6 +207,8 @@ impl Recipe {
     pub fn get(&self, key: &str) -> Option<String> {
         let opt = |v: Option<f32>| v.map_or("off".to_string(), |v| v.to_string());
         Some(match key {
+            "guide.quality" => self.guide.quality.to_string(),
+            "guide.prefilter" => self.guide.prefilter.to_string(),
             "threshold" => self.threshold.map_or("auto".to_string(), |t| t.to_string()),
             "resampling" => match self.resampling {
                 None => "auto".into(),

@@ -11,6 +11,7 @@ pub mod keys;
 use serde::{Deserialize, Serialize};
 
 use radn_core::align::warp::Resampling;
+use radn_core::guide::OidnSettings;
 
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};
 use crate::infer::input_blend::InputBlend;
@@ -21,6 +22,9 @@ use crate::model::config::NetConfig;
 #[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Recipe {
+    /// How OIDN makes the guide of a guided model's `--guide oidn` runs.
+    #[serde(default, skip_serializing_if = "OidnSettings::is_default")]
+    pub guide: OidnSettings,
     /// Kernel threshold t (paper eq. 3); `None`: the configuration's default.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub threshold: Option<f32>,
@@ -135,6 +139,7 @@ impl Recipe {
     /// The recipe of the shipped models of a kind: guided (`guided`) or unguided.
     pub fn for_kind(guided: bool) -> Self {
         Self {
+            guide: OidnSettings::default(),
             threshold: None,
             resampling: None,
             schedule: tuned::SCHEDULE,

@@ -195,6 +195,10 @@ pub fn run(a: Args) -> Result<()> {
             println!("{}", chosen.summary);
             reader.guide = chosen.guide.layer();
             let n = network_from(&a, chosen.network)?;
+            if let Some(o) = &chosen.oidn {
+                o.configure(n.recipe.guide);
+                tracing::debug!("OIDN guides: {}", n.recipe.guide);
+            }
             let stabilize = n.recipe.stabilize.map(|s| s.stabilizer());
             (Box::new(n), chosen.oidn, stabilize)
         }
@@ -222,6 +226,7 @@ pub fn run(a: Args) -> Result<()> {
         stabilize,
     };
     let t = std::time::Instant::now();
+    radn_core::run::timing::take();
     let outputs = run.frames.len();
     let mut bar: Option<(usize, indicatif::ProgressBar)> = None;
     let report = run.run(method.as_ref(), |p| {
@@ -270,6 +275,17 @@ pub fn run(a: Args) -> Result<()> {
     );
     if report.repaired > 0 {
         println!("repaired {} NaN/Inf input samples", report.repaired);
+    }
+    if report.written > 0 {
+        tracing::debug!(
+            "where the time went, over {} frames written:\n{}",
+            report.written,
+            radn_core::run::timing::report(
+                &radn_core::run::timing::take(),
+                t.elapsed(),
+                report.written
+            )
+        );
     }
     crate::progress::event(serde_json::json!({
         "event": "finished",
