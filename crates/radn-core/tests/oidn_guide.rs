@@ -123,3 +123,88 @@ fn a_missing_oidn_library_is_a_clear_error_saying_what_to_install() {
         assert!(line.contains(needed), "'{needed}' missing from: {line}");
     }
 }
+
+/// The sample's frame 5 stacked `k` times vertically (beauty, albedo, normal): a frame tall
+/// enough for guide bands with OIDN's halo.
+fn tall_frame(k: usize) -> radn_core::Frame {
+    let (mut f, _) = reader().read(&sample("low", 5)).unwrap();
+    let stack = |p: &radn_core::Plane| {
+        radn_core::Plane::from_fn(p.width(), p.height() * k, p.channels(), |x, y, c| {
+            p.get(x, y % p.height(), c)
+        })
+    };
+    f.color = stack(&f.color);
+    f.albedo = f.albedo.as_ref().map(stack);
+    f.normal = f.normal.as_ref().map(stack);
+    // only the guide's inputs are stacked
+    f.alpha = None;
+    f.depth = None;
+    f.motion_prev = None;
+    f.motion_next = None;
+    f.aovs.clear();
+    f
+}
+
+#[test]
+fn a_guide_made_in_bands_matches_the_whole_frames() {
+    let Some(g) = oidn() else { return };
+    let f = tall_frame(6);
+    let (w, h) = (f.color.width(), f.color.height());
+    let path = sample("low", 5);
+    let whole = g.of_frame(&f, &path).unwrap();
+    let mut bands: Vec<(usize, radn_core::Plane)> = Vec::new();
+    g.of_rows_in(
+        &path,
+        (w, h),
+        64,
+        &mut |rows| Ok(f.rows(rows)),
+        &mut |y0, band| {
+            bands.push((y0, band.clone()));
+            Ok(())
+        },
+    )
+    .unwrap();
+    assert_eq!(bands.len(), h.div_ceil(64));
+    let banded = radn_core::Plane::from_fn(w, h, 3, |x, y, c| {
+        let (y0, b) = &bands[y / 64];
+        b.get(x, y - y0, c)
+    });
+    // OIDN's own tiles differ from one whole-image pass by this much; a band filtered at its
+    // own exposure or without the halo would differ by far more (tens of dB lower)
+    let p = psnr(&banded, &whole).unwrap();
+    eprintln!("banded vs whole guide: {p:.1} dB");
+    assert!(p > 60.0, "banded guide {p:.1} dB from the whole frame's");
+    // and the next whole-frame guide is OIDN's own again (exposure and memory reset)
+    assert_eq!(g.of_frame(&f, &path).unwrap().data(), whole.data());
+}
+
+#[test]
+fn cheaper_guide_settings_change_the_guide_and_stay_far_better_than_the_noisy_frame() {
+    use radn_core::guide::{OidnQuality, OidnSettings, Prefilter};
+    let Some(g) = oidn() else { return };
+    let r = reader();
+    let path = sample("low", 5);
+    let (frame, _) = r.read(&path).unwrap();
+    let reference = reference(5);
+    let full = g.of_frame(&frame, &path).unwrap();
+    let p_noisy = psnr(&frame.color, &reference).unwrap();
+    for settings in [
+        OidnSettings {
+            quality: OidnQuality::High,
+            prefilter: Prefilter::Off,
+        },
+        OidnSettings {
+            quality: OidnQuality::Balanced,
+            prefilter: Prefilter::Balanced,
+        },
+    ] {
+        g.configure(settings);
+        let cheap = g.of_frame(&frame, &path).unwrap();
+        assert_ne!(cheap.data(), full.data(), "{settings}");
+        let p = psnr(&cheap, &reference).unwrap();
+        eprintln!("{settings}: {p:.2} dB (noisy {p_noisy:.2} dB)");
+        assert!(p > p_noisy + 6.0, "{settings}: {p:.2} dB");
+    }
+    g.configure(OidnSettings::default());
+    assert_eq!(g.of_frame(&frame, &path).unwrap().data(), full.data());
+}
