@@ -23,7 +23,7 @@ use crate::run::banding::{
 };
 use crate::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use crate::run::row_store::{FrameStore, RowStore};
-use crate::run::window::WindowReader;
+use crate::run::sweep::WindowSweep;
 
 /// Whether frames are denoised band by band, where the method can
 /// ([`WindowDenoiser::banded`]). Band by band, memory follows the band, not the frame; whole
@@ -104,7 +104,7 @@ impl SequenceJob {
 
     /// The frames the job writes, in order: position in `inputs`, output path, and whether it
     /// is finished already (its output exists and the job does not overwrite).
-    fn output_frames(&self) -> impl Iterator<Item = (usize, &Path, bool)> {
+    pub(crate) fn output_frames(&self) -> impl Iterator<Item = (usize, &Path, bool)> {
         self.outputs.iter().enumerate().filter_map(|(pos, o)| {
             o.as_deref()
                 .map(|o| (pos, o, !self.overwrite && o.exists()))
@@ -113,7 +113,7 @@ impl SequenceJob {
 
     /// Claims `output` for this run ([`OutputClaim`]), waiting while another run on the same
     /// output folder writes it.
-    fn claim(&self, output: &Path) -> Result<OutputClaim> {
+    pub(crate) fn claim(&self, output: &Path) -> Result<OutputClaim> {
         OutputClaim::acquire(output, || {
             tracing::info!(
                 "{}: another run is writing it; waiting for that run",
@@ -124,7 +124,7 @@ impl SequenceJob {
 
     /// Whether `output`, claimed by this run, was written meanwhile by another run on the same
     /// folder (and this run does not overwrite).
-    fn done_by_another_run(&self, output: &Path) -> bool {
+    pub(crate) fn done_by_another_run(&self, output: &Path) -> bool {
         let done = !self.overwrite && output.exists();
         if done {
             tracing::info!("{}: written by another run", output.display());
@@ -134,7 +134,7 @@ impl SequenceJob {
 
     /// The channel names a result of `frame` is written into: its beauty, alpha and AOVs, and
     /// the renderer's denoised beauty where [`SequenceJob::replace_denoised`] says so.
-    fn output_names(&self, frame: &Frame) -> Frame {
+    pub(crate) fn output_names(&self, frame: &Frame) -> Frame {
         let mut names = frame.rows(0..0);
         if !self.replace_denoised {
             names.denoised_channels = None;
@@ -209,25 +209,15 @@ impl SequenceJob {
         {
             return self.run_banded(method.radius(), banded, size, progress);
         }
-        let n = self.inputs.len();
-        let r = method.radius();
-        let reach = if method.prepare_needs_neighbours() {
-            r + 1
-        } else {
-            r
-        };
-        let prepares = method.prepares_frames();
-        let mut report = JobReport::default();
-        // decoded frames of the windows in flight, each with its file (every layer) until its
-        // output is written: every input is decoded once
         let files: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
-        let mut windows = WindowReader::new(&self.reader, &files, r)
-            .keeping_files()
-            .with_guides(self.guides.clone());
-        if method.needs_rendered() {
-            windows = windows.with_rendered(self.rendered.as_deref().unwrap_or(&files));
-        }
-        let mut prepared: BTreeMap<usize, Frame> = BTreeMap::new();
+        let mut sweep = WindowSweep::new(
+            method,
+            &self.reader,
+            &files,
+            self.guides.clone(),
+            self.rendered.as_deref(),
+        );
+        let mut report = JobReport::default();
         let total = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
             super::cancel::check()?;
@@ -237,46 +227,11 @@ impl SequenceJob {
                 progress((done + 1) as f64, total);
                 continue;
             }
-            // decode what this window needs, once
             let started = Instant::now();
-            windows.load(pos, reach)?;
-            let decoding = started.elapsed();
-            let preparing = Instant::now();
-            if method.has_frame_features() {
-                for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
-                    if windows.frame(k).features.is_none() {
-                        let features = method.frame_features(windows.frame(k));
-                        windows.frame_mut(k).features = features;
-                    }
-                }
-            }
-            if prepares {
-                prepared.retain(|&k, _| k + r >= pos);
-                for k in pos.saturating_sub(r)..(pos + r + 1).min(n) {
-                    if let std::collections::btree_map::Entry::Vacant(e) = prepared.entry(k) {
-                        let mut f = windows.frame(k).clone();
-                        let prev = k.checked_sub(1).and_then(|j| windows.get(j));
-                        let next = windows.get(k + 1);
-                        method.prepare(&mut f, prev, next);
-                        e.insert(f);
-                    }
-                }
-            }
-            let preparing = preparing.elapsed();
-            let denoising = Instant::now();
-            let out = if prepares {
-                let window: Vec<Option<&Frame>> = window_indices(pos, n, r)
-                    .iter()
-                    .map(|i| i.map(|i| &prepared[&i]))
-                    .collect();
-                method.denoise(&window)?
-            } else {
-                method.denoise(&windows.window(pos))?
-            };
-            let denoising = denoising.elapsed();
+            let (out, times) = sweep.denoise(pos)?;
             let writing = Instant::now();
-            let file = windows.take_file(pos).expect("each frame is written once");
-            let names = self.output_names(windows.frame(pos));
+            let file = sweep.take_file(pos).expect("each frame is written once");
+            let names = self.output_names(sweep.frame(pos));
             write_result(file, &names, &out, output, self.output_kind)?;
             super::timing::add("writing", writing.elapsed());
             drop(claim);
@@ -285,15 +240,15 @@ impl SequenceJob {
                  preparing them {:.1} s, denoising {:.1} s, writing {:.1} s",
                 output.display(),
                 started.elapsed().as_secs_f64(),
-                decoding.as_secs_f64(),
-                preparing.as_secs_f64(),
-                denoising.as_secs_f64(),
+                times.decoding.as_secs_f64(),
+                times.preparing.as_secs_f64(),
+                times.denoising.as_secs_f64(),
                 writing.elapsed().as_secs_f64()
             );
             report.written += 1;
             progress((done + 1) as f64, total);
         }
-        report.repaired = windows.repaired();
+        report.repaired = sweep.repaired();
         Ok(report)
     }
 }

@@ -4,8 +4,10 @@
 pub mod banding;
 pub mod cancel;
 pub mod denoiser;
+pub mod fused;
 pub mod job;
 pub mod passes;
 pub mod row_store;
+pub mod sweep;
 pub mod timing;
 pub mod window;

@@ -224,6 +224,7 @@ pub fn run(a: Args) -> Result<()> {
         oidn,
         bands: a.bands.into(),
         stabilize,
+        fuse_temporal: true,
     };
     let t = std::time::Instant::now();
     radn_core::run::timing::take();
