@@ -29,13 +29,16 @@
 use rayon::prelude::*;
 
 use crate::align::warp::Resampling;
-use crate::align::{align_window, AlignParams, AlignedFrame};
+use std::ops::Range;
+
+use crate::align::{align_bands, align_window, AlignParams, AlignedFrame, AlignedWindow};
 use crate::error::{Error, Result};
 use crate::eval::metrics::{tonemap, tonemap_plane};
 use crate::image::ops::{box_mean, luminance};
 use crate::image::plane::Plane;
 use crate::io::frame::Frame;
-use crate::run::denoiser::{Denoised, WindowDenoiser};
+use crate::run::banding::{FrameBand, FrameStats};
+use crate::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 
 /// The temporal pass over results ([module docs](self)).
 #[derive(Clone, Debug)]
@@ -50,6 +53,8 @@ pub struct TemporalStabilizer {
     pub noise_radius: usize,
     /// Frames on each side of the centre.
     pub radius: usize,
+    /// Output rows per band when the pass runs band by band.
+    pub band_rows: usize,
     /// How the neighbours' results are aligned: the renderer's motion, Catmull-Rom resampling
     /// (a result is sharp, and bilinear sampling would soften what it averages in), side frames
     /// not mixed towards the centre (the range term decides).
@@ -65,6 +70,7 @@ impl TemporalStabilizer {
             floor,
             noise_radius,
             radius: 2,
+            band_rows: 128,
             align: AlignParams {
                 mix_centre: false,
                 resampling: Resampling::CatmullRom,
@@ -121,13 +127,13 @@ impl TemporalStabilizer {
     /// beauty as rendered ([`Frame::rendered`]), which sets the range.
     pub fn stabilize(&self, window: &[Option<&Frame>]) -> Result<Denoised> {
         let centre = window[window.len() / 2].expect("the centre frame of a window must exist");
-        let rendered = centre.rendered.as_ref().ok_or_else(|| Error::Unsupported {
-            path: centre.path.clone(),
-            detail: "the temporal pass over results needs the frame as rendered beside its \
-                     result (it runs after a denoising pass)"
-                .into(),
-        })?;
-        let win = align_window(window, &self.align);
+        let rendered = rendered_of(centre)?;
+        Ok(self.combine(&align_window(window, &self.align), rendered))
+    }
+
+    /// The weighted average of the aligned window `win` whose centre was rendered as
+    /// `rendered` (its rows).
+    fn combine(&self, win: &AlignedWindow, rendered: &Plane) -> Denoised {
         let c = win.centre();
         let centre_mapped = tonemap_plane(&c.color);
         let sigma = self.sigma(rendered, &centre_mapped);
@@ -157,7 +163,7 @@ impl TemporalStabilizer {
             }
             out
         };
-        Ok(Denoised {
+        Denoised {
             color: average(&|f| &f.color),
             alpha: c
                 .alpha
@@ -166,6 +172,45 @@ impl TemporalStabilizer {
             aovs: (0..c.aovs.len())
                 .map(|k| average(&|f| &f.aovs[k]))
                 .collect(),
+        }
+    }
+}
+
+/// The centre frame's beauty as rendered, which the pass needs beside its result.
+fn rendered_of(centre: &Frame) -> Result<&Plane> {
+    centre.rendered.as_ref().ok_or_else(|| Error::Unsupported {
+        path: centre.path.clone(),
+        detail: "the temporal pass over results needs the frame as rendered beside its result \
+                 (it runs after a denoising pass)"
+            .into(),
+    })
+}
+
+impl BandDenoiser for TemporalStabilizer {
+    fn band_rows(&self) -> usize {
+        self.band_rows
+    }
+
+    fn halo(&self) -> usize {
+        // the noise box, and the two rows at a cut that banded alignment gets wrong
+        self.noise_radius + 2
+    }
+
+    fn denoise_band(
+        &self,
+        window: &[Option<FrameBand>],
+        out: Range<usize>,
+        _centre: &FrameStats,
+    ) -> Result<Denoised> {
+        let centre = window[window.len() / 2].expect("the centre band of a window must exist");
+        let rendered = rendered_of(centre.frame)?;
+        let d = crate::run::timing::timed("temporal pass", || {
+            self.combine(&align_bands(window, &self.align), rendered)
+        });
+        Ok(Denoised {
+            color: d.color.rows(out.clone()),
+            alpha: d.alpha.map(|a| a.rows(out.clone())),
+            aovs: d.aovs.into_iter().map(|a| a.rows(out.clone())).collect(),
         })
     }
 }
@@ -181,6 +226,10 @@ impl WindowDenoiser for TemporalStabilizer {
 
     fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised> {
         crate::run::timing::timed("temporal pass", || self.stabilize(window))
+    }
+
+    fn banded(&self) -> Option<&dyn BandDenoiser> {
+        Some(self)
     }
 }
 

@@ -74,7 +74,9 @@ pub(crate) fn run_fused(
         let frames: Vec<Option<&Frame>> = window.iter().map(|i| i.map(|i| &results[&i])).collect();
         let out = temporal.denoise(&frames)?;
         let writing = Instant::now();
-        let file = inputs.remove(&pos).expect("an output's input is kept until written");
+        let file = inputs
+            .remove(&pos)
+            .expect("an output's input is kept until written");
         let names = job.output_names(&results[&pos]);
         write_result(file, &names, &out, &output, job.output_kind)?;
         super::timing::add("writing", writing.elapsed());

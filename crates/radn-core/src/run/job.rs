@@ -202,12 +202,12 @@ impl SequenceJob {
         size: (usize, usize),
         mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
-        // band by band, frames carry no rendered beauty: a method that needs it runs whole frames
         if let Some(banded) = method
             .banded()
-            .filter(|_| self.bands.for_frame(size.0, size.1) && !method.needs_rendered())
+            .filter(|_| self.bands.for_frame(size.0, size.1))
         {
-            return self.run_banded(method.radius(), banded, size, progress);
+            let r = method.radius();
+            return self.run_banded(r, banded, method.needs_rendered(), size, progress);
         }
         let files: Vec<PathBuf> = self.inputs.iter().map(|(_, p)| p.clone()).collect();
         let mut sweep = WindowSweep::new(
@@ -264,6 +264,7 @@ impl SequenceJob {
         &self,
         r: usize,
         method: &dyn BandDenoiser,
+        needs_rendered: bool,
         (width, height): (usize, usize),
         mut progress: impl FnMut(f64, usize),
     ) -> Result<JobReport> {
@@ -275,6 +276,9 @@ impl SequenceJob {
         let mut decoded: BTreeMap<usize, FrameStore> = BTreeMap::new();
         let mut features: BTreeMap<usize, RowStore> = BTreeMap::new();
         let mut oidn: BTreeMap<usize, RowStore> = BTreeMap::new();
+        // and, for a method that reads them, their beauties as rendered where the inputs are
+        // an earlier pass's results (else a frame's own beauty is its rendered one)
+        let mut rendered: BTreeMap<usize, RowStore> = BTreeMap::new();
         let band = method.band_rows().max(1);
         let halo = method.halo();
         let frames = self.output_count();
@@ -308,6 +312,22 @@ impl SequenceJob {
                     report.repaired += s.repaired;
                     e.insert(s);
                     decoded.insert(k, store.expect("a frame has rows"));
+                }
+            }
+            if let (true, Some(originals)) = (needs_rendered, &self.rendered) {
+                for &k in idx.iter().flatten() {
+                    let original = &originals[k];
+                    if *original == self.inputs[k].1 || rendered.contains_key(&k) {
+                        continue;
+                    }
+                    let store = RowStore::new(&self.inputs[k].1, width, height, vec![3])?;
+                    for y0 in (0..height).step_by(STATS_ROWS) {
+                        let rows = y0..(y0 + STATS_ROWS).min(height);
+                        let f = self.reader.read_rows(original, rows)?;
+                        f.ensure_size(width, f.height())?;
+                        store.write_rows(y0, &[&f.color])?;
+                    }
+                    rendered.insert(k, store);
                 }
             }
             super::timing::add("decoding (bands)", gathering.elapsed());
@@ -347,7 +367,13 @@ impl SequenceJob {
                     f.guide = store.read_rows(rows.clone())?.pop();
                 }
                 if let Some(store) = features.get(&k) {
-                    f.features = store.read_rows(rows)?.pop();
+                    f.features = store.read_rows(rows.clone())?.pop();
+                }
+                if needs_rendered {
+                    f.rendered = match rendered.get(&k) {
+                        Some(store) => store.read_rows(rows)?.pop(),
+                        None => Some(f.color.clone()),
+                    };
                 }
                 Ok(f)
             };
@@ -438,6 +464,7 @@ impl SequenceJob {
             decoded.retain(|&k, _| k + r > pos);
             oidn.retain(|&k, _| k + r > pos);
             features.retain(|&k, _| k + r > pos);
+            rendered.retain(|&k, _| k + r > pos);
             progress((done + 1) as f64, frames);
         }
         Ok(report)
