@@ -13,13 +13,15 @@ pub mod oidn_settings;
 use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::sync::Mutex;
+use std::time::Instant;
 
 use crate::error::{Error, Result};
 use crate::image::plane::Plane;
 use crate::io::frame::{Frame, FrameReader};
+use crate::run::row_store::RowStore;
 
 pub use exposure::ExposureBins;
-pub use oidn::{GuideTimes, OidnDenoiser, OidnError};
+pub use oidn::{Aux, GuideTimes, OidnDenoiser, OidnError};
 pub use oidn_settings::{OidnQuality, OidnSettings, Prefilter};
 
 /// Where each frame's guide comes from, as a user names it (`--guide oidn|denoised|LAYER|none`).
@@ -73,6 +75,9 @@ pub struct OidnGuides {
 /// Rows of a frame filtered together when a guide is made band by band: about this many pixels
 /// per OIDN call (plus its halo), which bounds the images radn hands OIDN.
 const BAND_PIXELS: usize = 4 << 20;
+/// The row grid of OIDN's network (four 2× poolings): a band starting on it is filtered as
+/// those rows are within the whole frame.
+const OIDN_GRID: usize = 16;
 /// OIDN's scratch memory per filter when a guide is made band by band (it tiles within that).
 const BAND_OIDN_MEMORY_MB: usize = 1024;
 
@@ -155,7 +160,10 @@ impl OidnGuides {
         )
     }
 
-    /// [`OidnGuides::of_rows`] in bands of `band` rows.
+    /// [`OidnGuides::of_rows`] in bands of `band` rows. OIDN runs one filter at a time over
+    /// every band (the albedo's, the normal's, then the beauty's, the prefiltered auxiliaries
+    /// kept in scratch files between), on bands of one size, so it holds one filter's scratch
+    /// memory and builds each filter once per frame.
     pub fn of_rows_in(
         &self,
         path: &Path,
@@ -174,20 +182,79 @@ impl OidnGuides {
         let halo = d
             .tile_overlap(settings.quality)
             .map_err(|e| guide_error(path, e))?;
+        // every band read with its halo (rows read, rows kept), starting on OIDN's 16-row
+        // grid as the whole frame does (its network pools four times), all of one size but
+        // the last, so that each filter is built twice per frame, not once per band
+        let band = band.next_multiple_of(OIDN_GRID);
+        let halo = halo.next_multiple_of(OIDN_GRID);
+        let len = band + 2 * halo;
+        let bands: Vec<(Range<usize>, Range<usize>)> = (0..height)
+            .step_by(band)
+            .map(|y0| {
+                let start = y0.saturating_sub(halo);
+                let end = (start + len).min(height);
+                (start..end, y0..(y0 + band).min(height))
+            })
+            .collect();
         d.set_input_scale(Some(bins.exposure()));
         d.set_max_memory_mb(Some(BAND_OIDN_MEMORY_MB));
         let result = (|| {
             let mut times = GuideTimes::default();
-            for y0 in (0..height).step_by(band) {
-                let out = y0..(y0 + band).min(height);
-                let rows = y0.saturating_sub(halo)..(out.end + halo).min(height);
-                let f = read(rows.clone())?;
-                let (g, t) = d
-                    .denoise_with(&f.color, f.albedo.as_ref(), f.normal.as_ref(), &settings)
-                    .map_err(|e| guide_error(path, e))?;
-                times = times.plus(t);
-                write(y0, &g.rows(out.start - rows.start..out.end - rows.start))?;
+            // the prefiltered auxiliaries, one filter at a time
+            let mut clean: Vec<Option<RowStore>> = vec![None, None];
+            if let Some(q) = settings.prefilter.quality() {
+                let started = Instant::now();
+                for (k, which) in [Aux::Albedo, Aux::Normal].into_iter().enumerate() {
+                    let mut store: Option<RowStore> = None;
+                    for (rows, out) in &bands {
+                        let f = read(rows.clone())?;
+                        let Some(aux) = (match which {
+                            Aux::Albedo => f.albedo.as_ref(),
+                            Aux::Normal => f.normal.as_ref().filter(|_| f.albedo.is_some()),
+                        }) else {
+                            break;
+                        };
+                        let p = d
+                            .prefilter(aux, which, q)
+                            .map_err(|e| guide_error(path, e))?;
+                        let s = match &mut store {
+                            Some(s) => s,
+                            None => store.insert(RowStore::new(path, width, height, vec![3])?),
+                        };
+                        s.write_rows(
+                            out.start,
+                            &[&p.rows(out.start - rows.start..out.end - rows.start)],
+                        )?;
+                    }
+                    clean[k] = store;
+                }
+                times.prefilters = started.elapsed();
             }
+            let started = Instant::now();
+            for (rows, out) in &bands {
+                let f = read(rows.clone())?;
+                let aux = |k: usize, own: &Option<Plane>| -> Result<Option<Plane>> {
+                    match &clean[k] {
+                        Some(s) => Ok(s.read_rows(rows.clone())?.pop()),
+                        None => Ok(own.clone()),
+                    }
+                };
+                let (alb, nrm) = (aux(0, &f.albedo)?, aux(1, &f.normal)?);
+                let g = d
+                    .beauty(
+                        &f.color,
+                        alb.as_ref(),
+                        nrm.as_ref().filter(|_| alb.is_some()),
+                        settings.quality,
+                        settings.prefilter.quality().is_some(),
+                    )
+                    .map_err(|e| guide_error(path, e))?;
+                write(
+                    out.start,
+                    &g.rows(out.start - rows.start..out.end - rows.start),
+                )?;
+            }
+            times.beauty = started.elapsed();
             Ok(times)
         })();
         d.set_input_scale(None);

@@ -396,18 +396,25 @@ impl OidnDenoiser {
             "the beauty filter",
         ][role];
         let c = |s: &str| CString::new(s).expect("no NUL in a parameter name");
-        if self.filters[role].is_null() {
+        // with bounded memory one filter serves every role, so only one holds scratch memory
+        // (OIDN frees a filter's scratch when a commit rebuilds it for other images)
+        let slot = if self.max_memory_mb.is_some() {
+            0
+        } else {
+            role
+        };
+        if self.filters[slot].is_null() {
             // SAFETY: a live device.
-            self.filters[role] = unsafe { (self.api.new_filter)(self.device, c("RT").as_ptr()) };
+            self.filters[slot] = unsafe { (self.api.new_filter)(self.device, c("RT").as_ptr()) };
             self.check(stage)?;
-            if self.filters[role].is_null() {
+            if self.filters[slot].is_null() {
                 return Err(OidnError::Failed {
                     stage: stage.into(),
                     message: "no RT filter could be made".into(),
                 });
             }
         }
-        let f = self.filters[role];
+        let f = self.filters[slot];
         for (name, data) in images.iter_mut() {
             assert_eq!(data.len(), 3 * w * h, "an RGB image of the frame's size");
             // SAFETY: `data` outlives the execution below and holds w*h float3 pixels.
@@ -427,18 +434,19 @@ impl OidnDenoiser {
         }
         // SAFETY: a live filter whose images are set.
         unsafe {
-            for (name, value) in flags {
-                (self.api.set_filter_bool)(f, c(name).as_ptr(), *value);
+            // every flag is set each time: a shared filter keeps what an earlier role set
+            for name in ["hdr", "cleanAux"] {
+                let value = flags.iter().any(|(n, v)| *n == name && *v);
+                (self.api.set_filter_bool)(f, c(name).as_ptr(), value);
             }
             (self.api.set_filter_int)(f, c("quality").as_ptr(), quality.code());
             // the HDR beauty's exposure: the frame's where a band is filtered, else OIDN's own
-            if role == 2 {
-                (self.api.set_filter_float)(
-                    f,
-                    c("inputScale").as_ptr(),
-                    self.input_scale.unwrap_or(f32::NAN),
-                );
-            }
+            // (the prefilters' always OIDN's own: a shared filter keeps what was set)
+            let scale = match role {
+                2 => self.input_scale.unwrap_or(f32::NAN),
+                _ => f32::NAN,
+            };
+            (self.api.set_filter_float)(f, c("inputScale").as_ptr(), scale);
             (self.api.set_filter_int)(
                 f,
                 c("maxMemoryMB").as_ptr(),
@@ -480,8 +488,24 @@ impl OidnDenoiser {
 
     /// Bounds OIDN's scratch memory per filter (`maxMemoryMB`; it then filters in overlapping
     /// tiles of its own); `None`: OIDN's default.
+    /// While bounded, one filter serves the prefilters and the beauty in turn, so that OIDN
+    /// holds one filter's scratch memory, not three.
     pub fn set_max_memory_mb(&mut self, mb: Option<usize>) {
+        if mb.is_some() != self.max_memory_mb.is_some() {
+            self.release_filters();
+        }
         self.max_memory_mb = mb;
+    }
+
+    /// Releases every filter and the memory it holds (they are made again when next used).
+    fn release_filters(&mut self) {
+        for f in self.filters.iter_mut() {
+            if !f.is_null() {
+                // SAFETY: a filter made by this library, released once.
+                unsafe { (self.api.release_filter)(*f) };
+                *f = std::ptr::null_mut();
+            }
+        }
     }
 
     /// How many rows of context OIDN itself keeps around a tile (`tileOverlap` of its beauty
@@ -499,7 +523,8 @@ impl OidnDenoiser {
         )?;
         let c = CString::new("tileOverlap").expect("no NUL");
         // SAFETY: a live, committed filter.
-        let v = unsafe { (self.api.get_filter_int)(self.filters[2], c.as_ptr()) };
+        let slot = if self.max_memory_mb.is_some() { 0 } else { 2 };
+        let v = unsafe { (self.api.get_filter_int)(self.filters[slot], c.as_ptr()) };
         self.check("reading the beauty filter's tile overlap")?;
         Ok(v.max(0) as usize)
     }
@@ -514,57 +539,72 @@ impl OidnDenoiser {
         normal: Option<&Plane>,
         settings: &OidnSettings,
     ) -> Result<(Plane, GuideTimes), OidnError> {
+        check_images(color, albedo, normal)?;
+        let mut times = GuideTimes::default();
+        let (mut alb, mut nrm) = (None, None);
+        let q = settings.prefilter.quality();
+        if let Some(q) = q {
+            let started = Instant::now();
+            alb = albedo
+                .map(|a| self.prefilter(a, Aux::Albedo, q))
+                .transpose()?;
+            nrm = normal
+                .map(|n| self.prefilter(n, Aux::Normal, q))
+                .transpose()?;
+            times.prefilters = started.elapsed();
+        }
+        let started = Instant::now();
+        let guide = self.beauty(
+            color,
+            alb.as_ref().or(albedo),
+            nrm.as_ref().or(normal),
+            settings.quality,
+            q.is_some(),
+        )?;
+        times.beauty = started.elapsed();
+        Ok((guide, times))
+    }
+
+    /// OIDN's albedo or normal filter on `aux` (RGB) at `quality`.
+    pub fn prefilter(
+        &mut self,
+        aux: &Plane,
+        which: Aux,
+        quality: OidnQuality,
+    ) -> Result<Plane, OidnError> {
+        let (w, h) = (aux.width(), aux.height());
+        let (role, name, mut data) = match which {
+            Aux::Albedo => (0, "albedo", interleave(aux, |v| v.clamp(0.0, 1.0))),
+            Aux::Normal => (1, "normal", interleave(aux, |v| v.clamp(-1.0, 1.0))),
+        };
+        let mut out = vec![0.0f32; data.len()];
+        self.run(
+            role,
+            (w, h),
+            &mut [(name, &mut data), ("output", &mut out)],
+            &[],
+            quality,
+        )?;
+        Ok(deinterleave(w, h, &out))
+    }
+
+    /// OIDN's HDR beauty filter on `color` with its auxiliaries at `quality`, told they are
+    /// clean (prefiltered) where `clean`.
+    pub fn beauty(
+        &mut self,
+        color: &Plane,
+        albedo: Option<&Plane>,
+        normal: Option<&Plane>,
+        quality: OidnQuality,
+        clean: bool,
+    ) -> Result<Plane, OidnError> {
+        check_images(color, albedo, normal)?;
         let (w, h) = (color.width(), color.height());
-        for (p, what) in [(albedo, "albedo"), (normal, "normal")] {
-            if let Some(p) = p {
-                if !p.same_size(color) || p.channels() != 3 {
-                    return Err(OidnError::Input(format!(
-                        "the {what} is {}x{}x{}, the beauty {w}x{h}x3",
-                        p.width(),
-                        p.height(),
-                        p.channels()
-                    )));
-                }
-            }
-        }
-        if color.channels() != 3 {
-            return Err(OidnError::Input("the beauty must be RGB".into()));
-        }
-        if normal.is_some() && albedo.is_none() {
-            return Err(OidnError::Input("a normal needs an albedo".into()));
-        }
         let mut col = interleave(color, |v| v.max(0.0));
         let mut out = vec![0.0f32; col.len()];
         let mut alb = albedo.map(|p| interleave(p, |v| v.clamp(0.0, 1.0)));
         let mut nrm = normal.map(|p| interleave(p, |v| v.clamp(-1.0, 1.0)));
-        let mut times = GuideTimes::default();
-        if let Some(q) = settings.prefilter.quality() {
-            let started = Instant::now();
-            let mut scratch = vec![0.0f32; col.len()];
-            if let Some(a) = alb.as_mut() {
-                self.run(
-                    0,
-                    (w, h),
-                    &mut [("albedo", a), ("output", &mut scratch)],
-                    &[],
-                    q,
-                )?;
-                std::mem::swap(a, &mut scratch);
-            }
-            if let Some(n) = nrm.as_mut() {
-                self.run(
-                    1,
-                    (w, h),
-                    &mut [("normal", n), ("output", &mut scratch)],
-                    &[],
-                    q,
-                )?;
-                std::mem::swap(n, &mut scratch);
-            }
-            times.prefilters = started.elapsed();
-        }
-        let started = Instant::now();
-        let clean = settings.prefilter.quality().is_some() && (alb.is_some() || nrm.is_some());
+        let clean = clean && (alb.is_some() || nrm.is_some());
         let mut images: Vec<(&str, &mut [f32])> = vec![("color", &mut col)];
         if let Some(a) = alb.as_mut() {
             images.push(("albedo", a));
@@ -573,22 +613,59 @@ impl OidnDenoiser {
             images.push(("normal", n));
         }
         images.push(("output", &mut out));
-        let flags = [("hdr", true), ("cleanAux", clean)];
-        self.run(2, (w, h), &mut images, &flags, settings.quality)?;
-        times.beauty = started.elapsed();
-        Ok((deinterleave(w, h, &out), times))
+        self.run(
+            2,
+            (w, h),
+            &mut images,
+            &[("hdr", true), ("cleanAux", clean)],
+            quality,
+        )?;
+        Ok(deinterleave(w, h, &out))
     }
+}
+
+/// An auxiliary buffer OIDN prefilters.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Aux {
+    /// The albedo.
+    Albedo,
+    /// The shading normal.
+    Normal,
+}
+
+/// Checks that a beauty and its auxiliaries can be filtered together.
+fn check_images(
+    color: &Plane,
+    albedo: Option<&Plane>,
+    normal: Option<&Plane>,
+) -> Result<(), OidnError> {
+    let (w, h) = (color.width(), color.height());
+    for (p, what) in [(albedo, "albedo"), (normal, "normal")] {
+        if let Some(p) = p {
+            if !p.same_size(color) || p.channels() != 3 {
+                return Err(OidnError::Input(format!(
+                    "the {what} is {}x{}x{}, the beauty {w}x{h}x3",
+                    p.width(),
+                    p.height(),
+                    p.channels()
+                )));
+            }
+        }
+    }
+    if color.channels() != 3 {
+        return Err(OidnError::Input("the beauty must be RGB".into()));
+    }
+    if normal.is_some() && albedo.is_none() {
+        return Err(OidnError::Input("a normal needs an albedo".into()));
+    }
+    Ok(())
 }
 
 impl Drop for OidnDenoiser {
     fn drop(&mut self) {
         // SAFETY: the filters and the device were made by this library and are released once.
+        self.release_filters();
         unsafe {
-            for f in self.filters {
-                if !f.is_null() {
-                    (self.api.release_filter)(f);
-                }
-            }
             if !self.device.is_null() {
                 (self.api.release_device)(self.device);
             }
