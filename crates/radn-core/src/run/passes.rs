@@ -9,7 +9,7 @@ use std::path::PathBuf;
 
 use crate::error::{Error, Result};
 use crate::guide::{JobGuides, OidnGuides};
-use crate::io::exr_file::SampleKind;
+use crate::io::exr_file::{ExrFile, SampleKind};
 use crate::io::frame::FrameReader;
 use crate::io::sequence::SequencePattern;
 use crate::post::stabilize::TemporalStabilizer;
@@ -102,7 +102,10 @@ impl DenoiseRun {
         // type of the beauty as rendered (the first wanted frame's) stands for "the input's own"
         let last_kind = match self.output_kind {
             None if passes > 1 => {
-                let (frame, file) = self.reader.read(&self.input.path(numbers[0]))?;
+                // its first row tells (a whole 8K frame would cost gigabytes)
+                let path = self.input.path(numbers[0]);
+                let file = ExrFile::read_rows(&path, 0..1)?;
+                let frame = self.reader.frame_from(&file)?;
                 file.channel_kind(&frame.color_channels[0])
             }
             kind => kind,
