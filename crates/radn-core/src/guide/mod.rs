@@ -173,6 +173,11 @@ impl OidnGuides {
         write: &mut dyn FnMut(usize, &Plane) -> Result<()>,
     ) -> Result<()> {
         let band = band.max(1);
+        if height <= band {
+            // one band: the whole frame's guide, as OIDN makes it
+            let f = read(0..height)?;
+            return write(0, &self.of_frame(&f, path)?);
+        }
         let mut bins = ExposureBins::new(width, height);
         for y0 in (0..height).step_by(band) {
             bins.add_rows(y0, &read(y0..(y0 + band).min(height))?.color);
