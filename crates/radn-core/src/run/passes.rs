@@ -151,20 +151,25 @@ impl DenoiseRun {
                 ..JobReport::default()
             });
         }
+        // pass p denoises the wanted frames and, before the last pass, as many frames around
+        // them as the later passes' windows reach (positions in `all`)
+        let (first, last) = (
+            all.iter().position(|f| *f == numbers[0]),
+            all.iter().position(|f| Some(f) == numbers.last()),
+        );
+        let (first, last) = first
+            .zip(last)
+            .expect("the wanted frames are in their context");
+        let span = |pass: usize| {
+            let e = later_reach(pass);
+            first.saturating_sub(e)..(last + e + 1).min(all.len())
+        };
         // one denoising pass over whole frames and the temporal pass: one sweep, no scratch
         if let (Some(st), true) = (&self.stabilize, self.fuse_temporal && self.passes <= 1) {
             let banded = method.banded().is_some()
                 && self.bands.for_frame(size.0, size.1)
                 && !method.needs_rendered();
             if !banded {
-                let (first, last) = (
-                    all.iter().position(|f| *f == numbers[0]),
-                    all.iter().position(|f| Some(f) == numbers.last()),
-                );
-                let (first, last) = first
-                    .zip(last)
-                    .expect("the wanted frames are in their context");
-                let span = first.saturating_sub(st.radius)..(last + st.radius + 1).min(all.len());
                 let job = job(inputs, outputs, true, false);
                 let frames = job.output_count();
                 progress(PassProgress {
@@ -173,7 +178,7 @@ impl DenoiseRun {
                     done: 0.0,
                     frames,
                 });
-                return crate::run::fused::run_fused(&job, method, st, span, |done, _| {
+                return crate::run::fused::run_fused(&job, method, st, span(1), |done, _| {
                     progress(PassProgress {
                         pass: 1,
                         passes: 1,
@@ -202,19 +207,6 @@ impl DenoiseRun {
             )
         } else {
             None
-        };
-        // pass p denoises the wanted frames and, before the last pass, as many frames around
-        // them as the later passes' windows reach (positions in `all`)
-        let (first, last) = (
-            all.iter().position(|f| *f == numbers[0]),
-            all.iter().position(|f| Some(f) == numbers.last()),
-        );
-        let (first, last) = first
-            .zip(last)
-            .expect("the wanted frames are in their context");
-        let span = |pass: usize| {
-            let e = later_reach(pass);
-            first.saturating_sub(e)..(last + e + 1).min(all.len())
         };
         // what the current pass reads: positions in `all` and their files
         let mut reading = 0..all.len();
