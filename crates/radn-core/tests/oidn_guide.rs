@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use radn_core::eval::metrics::psnr;
-use radn_core::guide::OidnGuides;
+use radn_core::guide::{OidnDenoiser, OidnDevice, OidnGuides};
 use radn_core::io::frame::{FrameReader, Requirements};
 use radn_core::io::mapping::ChannelMapping;
 
@@ -215,4 +215,55 @@ fn cheaper_guide_settings_change_the_guide_and_stay_far_better_than_the_noisy_fr
     }
     g.configure(OidnSettings::default());
     assert_eq!(g.of_frame(&frame, &path).unwrap().data(), full.data());
+}
+
+#[test]
+fn images_copied_through_oidn_buffers_give_the_shared_images_result() {
+    // a GPU that cannot read the process's memory gets its images through OIDN buffers; on
+    // the CPU both ways must give the same guide, bit for bit
+    if oidn().is_none() {
+        return;
+    }
+    let mut d = OidnDenoiser::new(2).unwrap();
+    let (f, _) = reader().read(&sample("low", 5)).unwrap();
+    let shared = d
+        .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
+        .unwrap();
+    d.copy_images(true);
+    let copied = d
+        .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
+        .unwrap();
+    assert_eq!(copied.data(), shared.data());
+    assert!(psnr(&copied, &reference(5)).unwrap() > psnr(&f.color, &reference(5)).unwrap() + 6.0);
+}
+
+#[test]
+fn oidn_on_a_gpu_agrees_with_the_cpu_or_says_why_it_cannot_run() {
+    if oidn().is_none() {
+        return;
+    }
+    let (f, _) = reader().read(&sample("low", 5)).unwrap();
+    match OidnDenoiser::on(OidnDevice::Cuda(0), 0) {
+        Ok(mut gpu) => {
+            // a machine with an NVIDIA GPU: the same estimate within OIDN's GPU/CPU tolerance
+            let on_gpu = gpu
+                .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
+                .unwrap();
+            let on_cpu = OidnDenoiser::new(2)
+                .unwrap()
+                .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
+                .unwrap();
+            let agree = psnr(&on_gpu, &on_cpu).unwrap();
+            eprintln!("OIDN on the GPU against the CPU: {agree:.1} dB");
+            assert!(agree > 45.0, "GPU and CPU guides differ: {agree:.1} dB");
+        }
+        Err(e) => {
+            // without one (CI): a clear error naming the device and what it needs
+            let text = e.to_string();
+            eprintln!("no GPU here: {text}");
+            for needed in ["CUDA GPU 0", "libOpenImageDenoise_device_cuda", "driver"] {
+                assert!(text.contains(needed), "'{needed}' missing from: {text}");
+            }
+        }
+    }
 }

@@ -6,8 +6,9 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 
 use anyhow::{anyhow, Result};
-use radn_core::guide::{GuideChoice, OidnGuides};
+use radn_core::guide::{GuideChoice, OidnDevice, OidnGuides};
 use radn_nn::burn::tensor::Device;
+use radn_nn::device::ComputeDevice;
 use radn_nn::infer::NetworkDenoiser;
 use radn_nn::model::Denoiser;
 
@@ -101,14 +102,14 @@ pub fn choose_path(
     model: Option<&Path>,
     request: &GuideRequest,
     oidn_threads: usize,
-    device: radn_nn::device::ComputeDevice,
+    device: ComputeDevice,
 ) -> Result<ChosenPath> {
     let dev = device.open()?;
     let (denoiser, guide, oidn) = match request {
         GuideRequest::Given(guide) => {
             let d = load_for(model, guide.is_some(), &dev)?;
             check_model(&d, guide, &label_for(model, guide.is_some()))?;
-            let oidn = open_oidn_for(guide, oidn_threads)?;
+            let oidn = open_oidn_for(guide, oidn_threads, device)?;
             (d, guide.clone(), oidn)
         }
         GuideRequest::Auto => match model {
@@ -119,10 +120,10 @@ pub fn choose_path(
                 } else {
                     GuideChoice::None
                 };
-                let oidn = open_oidn_for(&guide, oidn_threads)?;
+                let oidn = open_oidn_for(&guide, oidn_threads, device)?;
                 (d, guide, oidn)
             }
-            None => match OidnGuides::new(oidn_threads) {
+            None => match open_oidn(oidn_threads, device) {
                 Ok(o) => (
                     load_for(None, true, &dev)?,
                     GuideChoice::Oidn,
@@ -165,11 +166,28 @@ pub fn choose_path(
 
 /// OIDN opened for `guide` where it is OIDN's (an error saying what to install where the
 /// library is missing).
-fn open_oidn_for(guide: &GuideChoice, threads: usize) -> Result<Option<Arc<OidnGuides>>> {
+fn open_oidn_for(
+    guide: &GuideChoice,
+    threads: usize,
+    device: ComputeDevice,
+) -> Result<Option<Arc<OidnGuides>>> {
     Ok(match guide {
-        GuideChoice::Oidn => Some(Arc::new(OidnGuides::new(threads)?)),
+        GuideChoice::Oidn => Some(Arc::new(open_oidn(threads, device)?)),
         _ => None,
     })
+}
+
+/// OIDN on the network's device: on a GPU run its CUDA device (the guides then cost the CPU
+/// nothing), falling back to the CPU with a warning where OIDN cannot use that GPU.
+fn open_oidn(threads: usize, device: ComputeDevice) -> radn_core::Result<OidnGuides> {
+    match device {
+        ComputeDevice::Cpu => OidnGuides::new(threads),
+        ComputeDevice::Cuda(n) => OidnGuides::on(OidnDevice::Cuda(n), threads).or_else(|e| {
+            let cpu = OidnGuides::new(threads)?;
+            tracing::warn!("{e}; OIDN's guides are made on the CPU instead");
+            Ok(cpu)
+        }),
+    }
 }
 
 /// Checks that `model` (shown as `label`) and `guide` go together: a guided model needs a

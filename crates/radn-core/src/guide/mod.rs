@@ -8,6 +8,7 @@
 
 pub mod exposure;
 pub mod oidn;
+mod oidn_library;
 pub mod oidn_settings;
 
 use std::ops::Range;
@@ -21,7 +22,7 @@ use crate::io::frame::{Frame, FrameReader};
 use crate::run::row_store::RowStore;
 
 pub use exposure::ExposureBins;
-pub use oidn::{Aux, GuideTimes, OidnDenoiser, OidnError};
+pub use oidn::{Aux, GuideTimes, OidnDenoiser, OidnDevice, OidnError};
 pub use oidn_settings::{OidnQuality, OidnSettings, Prefilter};
 
 /// Where each frame's guide comes from, as a user names it (`--guide oidn|denoised|LAYER|none`).
@@ -85,7 +86,12 @@ impl OidnGuides {
     /// Opens OIDN with `threads` threads (0: every core); fails with a message saying what
     /// to install where the library is missing.
     pub fn new(threads: usize) -> Result<Self> {
-        let d = OidnDenoiser::new(threads).map_err(|e| Error::Guide {
+        Self::on(OidnDevice::Cpu, threads)
+    }
+
+    /// Opens OIDN on `device` (`threads`: the CPU device's, 0 for every core).
+    pub fn on(device: OidnDevice, threads: usize) -> Result<Self> {
+        let d = OidnDenoiser::on(device, threads).map_err(|e| Error::Guide {
             path: PathBuf::new(),
             detail: e.to_string(),
         })?;
@@ -108,8 +114,12 @@ impl OidnGuides {
     /// The library in use, for messages: "Intel Open Image Denoise 2.5.1 (PATH)".
     pub fn describe(&self) -> String {
         let d = lock(&self.denoiser);
+        let on = match d.device() {
+            OidnDevice::Cpu => String::new(),
+            gpu => format!(" on the {gpu}"),
+        };
         format!(
-            "Intel Open Image Denoise {} ({})",
+            "Intel Open Image Denoise {} ({}){on}",
             d.version(),
             d.library().display()
         )

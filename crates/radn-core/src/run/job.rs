@@ -352,6 +352,9 @@ impl SequenceJob {
                             |y0, g| store.write_rows(y0, &[g]),
                         )?;
                         e.insert(store);
+                        // OIDN's scratch and the guide's bands are free now: neither the next
+                        // guide nor the network's bands would reuse all of it (see `memory`)
+                        super::memory::release_free_memory();
                     }
                 }
             }
@@ -431,6 +434,9 @@ impl SequenceJob {
                     &stats[&pos],
                 )?;
                 denoising += t.elapsed();
+                // a band's blocks differ in size from the next band's (alignment reaches,
+                // tiles at the frame's edge): without a release the heap's holes add up
+                super::memory::release_free_memory();
                 progress(done as f64 + out.end as f64 / height as f64, frames);
                 Ok(d)
             };
@@ -465,6 +471,8 @@ impl SequenceJob {
             oidn.retain(|&k, _| k + r > pos);
             features.retain(|&k, _| k + r > pos);
             rendered.retain(|&k, _| k + r > pos);
+            // the bands' memory back before the next frame's guide and decoding
+            super::memory::release_free_memory();
             progress((done + 1) as f64, frames);
         }
         Ok(report)

@@ -6,6 +6,7 @@ pub mod cancel;
 pub mod denoiser;
 pub mod fused;
 pub mod job;
+pub mod memory;
 pub mod passes;
 pub mod row_store;
 pub mod sweep;

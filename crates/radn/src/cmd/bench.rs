@@ -39,7 +39,12 @@ pub struct Args {
     /// radn's CPU path and through burn's, in GFLOP/s.
     #[arg(long, conflicts_with_all = ["network", "device"])]
     pub convs: bool,
-    /// For --network (training and --inference): where it runs, cpu or cuda[:N].
+    /// Instead: time Intel Open Image Denoise alone on the first frame of --input, on
+    /// --device (its CUDA device for cuda): with the noisy auxiliaries, and prefiltered (the
+    /// albedo and normal filters, then the beauty's: radn's guide), images in memory.
+    #[arg(long, conflicts_with_all = ["network", "convs", "classic"])]
+    pub oidn: bool,
+    /// For --network (training and --inference) and --oidn: where it runs, cpu or cuda[:N].
     #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
     pub device: radn_nn::device::ComputeDevice,
     /// Also time the classic denoiser's stages.
@@ -72,6 +77,9 @@ pub fn run(a: Args) -> Result<()> {
         ));
     }
     let reader = a.channels.reader(&files[0].1, Requirements::DENOISE)?;
+    if a.oidn {
+        return oidn(&reader, &files[0].1, a.repeat, a.device);
+    }
     let paths: Vec<PathBuf> = files[..5].iter().map(|(_, p)| p.clone()).collect();
     let t = time_windows(&reader, &paths, a.repeat, a.classic)?;
     let size = t.size;
@@ -244,6 +252,54 @@ fn network(
         println!(
             "  network / bare stack throughput: {:.2}",
             net.gflops() / stack.gflops()
+        );
+    }
+    Ok(())
+}
+
+/// `--oidn`: OIDN's filters on one frame, on the CPU or its CUDA device, median of `repeats`
+/// after one warm-up (filters built, weights loaded).
+fn oidn(
+    reader: &radn_core::io::frame::FrameReader,
+    path: &std::path::Path,
+    repeats: usize,
+    device: radn_nn::device::ComputeDevice,
+) -> Result<()> {
+    use radn_core::guide::{OidnDenoiser, OidnDevice, OidnSettings, Prefilter};
+    let kind = match device {
+        radn_nn::device::ComputeDevice::Cpu => OidnDevice::Cpu,
+        radn_nn::device::ComputeDevice::Cuda(n) => OidnDevice::Cuda(n),
+    };
+    let mut d = OidnDenoiser::on(kind, 0)?;
+    let (f, _) = reader.read(path)?;
+    let (w, h) = (f.color.width(), f.color.height());
+    println!(
+        "Intel Open Image Denoise {} on the {kind}, {w}x{h} ({:.3} MP), median of {repeats}",
+        d.version(),
+        (w * h) as f64 / 1e6
+    );
+    for (name, prefilter) in [
+        ("noisy auxiliaries", Prefilter::Off),
+        ("prefiltered (radn's guide)", Prefilter::default()),
+    ] {
+        let settings = OidnSettings {
+            prefilter,
+            ..OidnSettings::default()
+        };
+        let mut secs = Vec::new();
+        for k in 0..=repeats.max(1) {
+            let started = std::time::Instant::now();
+            d.denoise_with(&f.color, f.albedo.as_ref(), f.normal.as_ref(), &settings)?;
+            if k > 0 {
+                secs.push(started.elapsed().as_secs_f64());
+            }
+        }
+        secs.sort_by(f64::total_cmp);
+        let t = secs[secs.len() / 2];
+        println!(
+            "{name:28} {:9.1} ms   {:7.2} MP/s",
+            t * 1e3,
+            (w * h) as f64 / 1e6 / t
         );
     }
     Ok(())
