@@ -136,8 +136,8 @@ impl From<ResamplingArg> for radn_core::align::warp::Resampling {
 }
 
 /// When frames are denoised band by band, as the command line names it
-/// ([`radn_core::run::job::Bands`]).
-#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+/// ([`radn_core::run::job::Bands`]): `auto`, `always`, `never`, or a number of rows.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum BandsArg {
     /// Band by band for frames of more than 2.5 megapixels, whole frames for smaller ones.
     Auto,
@@ -145,6 +145,26 @@ pub enum BandsArg {
     Always,
     /// Whole frames whatever their size: memory follows the frame.
     Never,
+    /// Band by band in bands of at most this many rows: less memory, more rows read twice.
+    Rows(usize),
+}
+
+impl std::str::FromStr for BandsArg {
+    type Err = String;
+
+    fn from_str(s: &str) -> std::result::Result<Self, String> {
+        match s {
+            "auto" => Ok(Self::Auto),
+            "always" => Ok(Self::Always),
+            "never" => Ok(Self::Never),
+            rows => match rows.parse::<usize>() {
+                Ok(n) if n > 0 => Ok(Self::Rows(n)),
+                _ => Err(format!(
+                    "'{rows}': give auto, always, never or a number of rows (at least 1)"
+                )),
+            },
+        }
+    }
 }
 
 impl From<BandsArg> for radn_core::run::job::Bands {
@@ -153,6 +173,7 @@ impl From<BandsArg> for radn_core::run::job::Bands {
             BandsArg::Auto => Self::Auto,
             BandsArg::Always => Self::Always,
             BandsArg::Never => Self::Never,
+            BandsArg::Rows(n) => Self::Rows(n),
         }
     }
 }

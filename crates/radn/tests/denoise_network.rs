@@ -237,34 +237,38 @@ fn banded_denoising_equals_whole_frame_denoising() {
     };
     let m = model_reading(d.path(), Some(0.5), inputs);
     let input = tall(d.path());
-    let run = |tile: &str| {
-        let out = format!("{}/t{tile}/f_####.exr", d.path().display());
+    let run = |tile: &str, bands: &str| {
+        let out = format!("{}/t{tile}-{bands}/f_####.exr", d.path().display());
         let args = [
             "--method",
             "network",
             "--tile",
             tile,
             "--bands",
-            "always",
+            bands,
             "--tune",
             "input-blend=2",
         ];
         denoise_frames_3_to_7(&m, &input, &out, &args)
     };
-    let whole = run("0");
-    let banded = run("64");
-    let mut compared = 0;
-    for_each_channel(&whole, &banded, |name, x, y| {
-        for (i, (u, v)) in x.iter().zip(y).enumerate() {
-            assert!(
-                (u - v).abs() <= 1e-5 * u.abs().max(1.0),
-                "{name} pixel {i} (row {}): whole frame {u}, banded {v}",
-                i / 176
-            );
-        }
-        compared += x.len();
-    });
-    assert!(compared >= 3 * 10 * 176 * 300, "{compared}");
+    let whole = run("0", "always");
+    // bands of one tile's rows, and bands shorter than a tile (`--bands ROWS`, what wide
+    // frames get): tiles then span a band's rows only
+    for bands in ["always", "24"] {
+        let banded = run("64", bands);
+        let mut compared = 0;
+        for_each_channel(&whole, &banded, |name, x, y| {
+            for (i, (u, v)) in x.iter().zip(y).enumerate() {
+                assert!(
+                    (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                    "--bands {bands}: {name} pixel {i} (row {}): whole frame {u}, banded {v}",
+                    i / 176
+                );
+            }
+            compared += x.len();
+        });
+        assert!(compared >= 3 * 10 * 176 * 300, "{compared}");
+    }
 }
 
 #[test]

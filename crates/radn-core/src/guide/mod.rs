@@ -75,7 +75,7 @@ pub struct OidnGuides {
 
 /// Rows of a frame filtered together when a guide is made band by band: about this many pixels
 /// per OIDN call (plus its halo), which bounds the images radn hands OIDN.
-const BAND_PIXELS: usize = 4 << 20;
+const BAND_PIXELS: usize = 2 << 20;
 /// The row grid of OIDN's network (four 2× poolings): a band starting on it is filtered as
 /// those rows are within the whole frame.
 const OIDN_GRID: usize = 16;

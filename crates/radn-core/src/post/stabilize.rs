@@ -187,8 +187,8 @@ fn rendered_of(centre: &Frame) -> Result<&Plane> {
 }
 
 impl BandDenoiser for TemporalStabilizer {
-    fn band_rows(&self) -> usize {
-        self.band_rows
+    fn band_rows(&self, _width: usize, limit: usize) -> usize {
+        self.band_rows.min(limit).max(1)
     }
 
     fn halo(&self) -> usize {

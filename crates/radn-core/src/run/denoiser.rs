@@ -75,8 +75,9 @@ pub struct BandFeatures {
 /// result of denoising whole frames (the network: its receptive field is finite, and aligning
 /// a band needs only the rows the motion reaches).
 pub trait BandDenoiser: Sync {
-    /// Output rows per band.
-    fn band_rows(&self) -> usize;
+    /// Output rows per band of frames `width` pixels wide, at most `limit` where the method's
+    /// grid allows (a method that needs bands on a grid of rows rounds down to it).
+    fn band_rows(&self, width: usize, limit: usize) -> usize;
     /// Rows of the centre frame beyond a band's output rows that denoising the band reads.
     fn halo(&self) -> usize;
     /// The shape of the method's per-frame features ([`WindowDenoiser::frame_features`] in

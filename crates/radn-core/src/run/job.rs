@@ -39,6 +39,9 @@ pub enum Bands {
     Always,
     /// Whole frames whatever their size.
     Never,
+    /// Band by band whatever the frame's size, in bands of at most this many rows (the
+    /// method's own band, or fewer: less memory, more halo rows read and computed twice).
+    Rows(usize),
 }
 
 /// The frame size above which [`Bands::Auto`] goes band by band: 2.5 megapixels, so 1080p
@@ -53,6 +56,16 @@ impl Bands {
             Bands::Auto => width * height > AUTO_BAND_PIXELS,
             Bands::Always => true,
             Bands::Never => false,
+            Bands::Rows(_) => true,
+        }
+    }
+
+    /// The most output rows a band may have (no limit but the method's own unless
+    /// [`Bands::Rows`]).
+    pub fn row_limit(self) -> usize {
+        match self {
+            Bands::Rows(n) => n.max(1),
+            _ => usize::MAX,
         }
     }
 }
@@ -279,8 +292,9 @@ impl SequenceJob {
         // and, for a method that reads them, their beauties as rendered where the inputs are
         // an earlier pass's results (else a frame's own beauty is its rendered one)
         let mut rendered: BTreeMap<usize, RowStore> = BTreeMap::new();
-        let band = method.band_rows().max(1);
+        let band = method.band_rows(width, self.bands.row_limit()).max(1);
         let halo = method.halo();
+        tracing::debug!("band by band: {band} rows per band, {halo} rows of halo on each side");
         let frames = self.output_count();
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
             super::cancel::check()?;

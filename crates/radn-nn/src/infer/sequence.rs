@@ -15,6 +15,10 @@ use crate::profile::{self, timed, Stage};
 
 use super::NetworkDenoiser;
 
+/// Pixels of output per band when a frame goes band by band: a 512-pixel tile's row on frames
+/// up to 2048 pixels wide, 256 rows at 4K and 128 at 8K, so a band's memory stays about the
+/// same whatever the width (`docs/research/guided-speed.md`, "Memory").
+const BAND_PIXELS: usize = 1 << 20;
 impl NetworkDenoiser {
     /// Whether the network's per-frame layers run once per frame as rendered and their
     /// features are warped into each window ([`crate::model::config::NetConfig::frame_local_stem`]).
@@ -79,10 +83,13 @@ impl WindowDenoiser for NetworkDenoiser {
 }
 
 impl BandDenoiser for NetworkDenoiser {
-    fn band_rows(&self) -> usize {
-        // whole tiles of the coarsest kernel scale's grid, so every band starts on it
+    fn band_rows(&self, width: usize, limit: usize) -> usize {
+        // one row of tiles, on the coarsest kernel scale's grid so every band starts on it;
+        // fewer rows on frames so wide that a band's window (five frames of every input and
+        // their aligned copies, some 250 bytes a pixel) would outgrow BAND_PIXELS
         let g = self.denoiser.tile_grid();
-        (self.tile / g * g).max(g)
+        let rows = self.tile.min(BAND_PIXELS / width.max(1)).min(limit);
+        (rows / g * g).max(g)
     }
 
     fn halo(&self) -> usize {

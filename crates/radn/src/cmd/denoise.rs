@@ -123,13 +123,11 @@ pub struct Args {
         help_heading = "Performance"
     )]
     pub tile: Setting<usize>,
-    /// auto, always, never: memory follows the width.
+    /// auto, always, never, or rows per band: memory follows the width.
     #[arg(
         long,
-        value_enum,
         default_value = "auto",
         value_name = "WHEN",
-        hide_possible_values = true,
         help_heading = "Performance"
     )]
     pub bands: crate::input::BandsArg,
@@ -203,9 +201,13 @@ pub fn run(a: Args) -> Result<()> {
             (Box::new(n), chosen.oidn, stabilize)
         }
     };
-    if a.bands == crate::input::BandsArg::Always && method.banded().is_none() {
+    let forced = matches!(
+        a.bands,
+        crate::input::BandsArg::Always | crate::input::BandsArg::Rows(_)
+    );
+    if forced && method.banded().is_none() {
         tracing::warn!(
-            "--bands always: this method runs whole frames (the classic method, --tile off or a \
+            "--bands: this method runs whole frames (the classic method, --tile off or a \
              UNet), so memory follows the frame"
         );
     }
