@@ -50,7 +50,8 @@ impl ChannelArgs {
         let mapping = if let Some(m) = &self.mapping {
             ChannelMapping::from_file(m)?
         } else if self.preset == "auto" {
-            let file = ExrFile::read(probe)?;
+            // the header's channel names are all it needs: one row, not a whole 8K frame
+            let file = ExrFile::read_rows(probe, 0..1)?;
             let m = ChannelMapping::detect(&file.channel_names()).ok_or_else(|| {
                 anyhow!(
                     "'{}': no preset fits its channels ({}); pass --preset or --mapping",

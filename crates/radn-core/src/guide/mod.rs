@@ -240,6 +240,8 @@ impl OidnGuides {
                             out.start,
                             &[&p.rows(out.start - rows.start..out.end - rows.start)],
                         )?;
+                        // the band's images and OIDN's scratch back before the next band's
+                        crate::run::memory::release_free_memory();
                     }
                     clean[k] = store;
                 }
@@ -268,6 +270,7 @@ impl OidnGuides {
                     out.start,
                     &g.rows(out.start - rows.start..out.end - rows.start),
                 )?;
+                crate::run::memory::release_free_memory();
             }
             times.beauty = started.elapsed();
             Ok(times)

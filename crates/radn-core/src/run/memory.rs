@@ -6,7 +6,8 @@
 //! scratch of up to a gigabyte and the bands' images) and the network's bands take turns; the
 //! blocks one phase frees do not fit the other's, so without a release between them the heap
 //! holds both phases' peaks at once. [`release_free_memory`] hands the free pages back at such a
-//! turn; the next phase faults in what it needs once.
+//! turn (between a guide's bands, too, whose last band differs in size); the next phase faults in
+//! what it needs once.
 
 /// Returns the free pages of the process's heap to the operating system (glibc's
 /// `malloc_trim`): a no-op on other platforms and C libraries.
