@@ -44,6 +44,16 @@ impl FromStr for ComputeDevice {
     }
 }
 
+/// OIDN on the same device as the network: its CUDA device for a GPU run.
+impl From<ComputeDevice> for radn_core::guide::OidnDevice {
+    fn from(d: ComputeDevice) -> Self {
+        match d {
+            ComputeDevice::Cpu => Self::Cpu,
+            ComputeDevice::Cuda(n) => Self::Cuda(n),
+        }
+    }
+}
+
 impl fmt::Display for ComputeDevice {
     fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
         match self {

@@ -180,9 +180,9 @@ fn open_oidn_for(
 /// OIDN on the network's device: on a GPU run its CUDA device (the guides then cost the CPU
 /// nothing), falling back to the CPU with a warning where OIDN cannot use that GPU.
 fn open_oidn(threads: usize, device: ComputeDevice) -> radn_core::Result<OidnGuides> {
-    match device {
-        ComputeDevice::Cpu => OidnGuides::new(threads),
-        ComputeDevice::Cuda(n) => OidnGuides::on(OidnDevice::Cuda(n), threads).or_else(|e| {
+    match device.into() {
+        OidnDevice::Cpu => OidnGuides::new(threads),
+        gpu => OidnGuides::on(gpu, threads).or_else(|e| {
             let cpu = OidnGuides::new(threads)?;
             tracing::warn!("{e}; OIDN's guides are made on the CPU instead");
             Ok(cpu)

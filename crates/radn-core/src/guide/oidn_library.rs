@@ -21,7 +21,9 @@ type GetDeviceInt = unsafe extern "C" fn(*mut c_void, *const c_char) -> c_int;
 type GetDeviceError = unsafe extern "C" fn(*mut c_void, *mut *const c_char) -> c_int;
 type NewFilter = unsafe extern "C" fn(*mut c_void, *const c_char) -> *mut c_void;
 type FilterFn = unsafe extern "C" fn(*mut c_void);
-type SetSharedFilterImage = unsafe extern "C" fn(
+/// `oidnSetSharedFilterImage` and `oidnSetFilterImage`: filter, image name, the host pointer or
+/// OIDN buffer, format, width, height, byte offset, pixel and row strides (0: packed).
+type SetImage = unsafe extern "C" fn(
     *mut c_void,
     *const c_char,
     *mut c_void,
@@ -38,17 +40,6 @@ type NewBuffer = unsafe extern "C" fn(*mut c_void, usize) -> *mut c_void;
 type CopyToBuffer = unsafe extern "C" fn(*mut c_void, usize, usize, *const c_void);
 type CopyFromBuffer = unsafe extern "C" fn(*mut c_void, usize, usize, *mut c_void);
 type BufferFn = unsafe extern "C" fn(*mut c_void);
-type SetFilterImage = unsafe extern "C" fn(
-    *mut c_void,
-    *const c_char,
-    *mut c_void,
-    c_int,
-    usize,
-    usize,
-    usize,
-    usize,
-    usize,
-);
 type UnsetFilterImage = unsafe extern "C" fn(*mut c_void, *const c_char);
 type SetFilterBool = unsafe extern "C" fn(*mut c_void, *const c_char, bool);
 type SetFilterInt = unsafe extern "C" fn(*mut c_void, *const c_char, c_int);
@@ -64,7 +55,7 @@ pub(super) struct Api {
     pub(super) write_buffer: CopyToBuffer,
     pub(super) read_buffer: CopyFromBuffer,
     pub(super) release_buffer: BufferFn,
-    pub(super) set_filter_image: SetFilterImage,
+    pub(super) set_filter_image: SetImage,
     pub(super) commit_device: DeviceFn,
     pub(super) release_device: DeviceFn,
     pub(super) set_device_int: SetDeviceInt,
@@ -74,7 +65,7 @@ pub(super) struct Api {
     pub(super) commit_filter: FilterFn,
     pub(super) execute_filter: FilterFn,
     pub(super) release_filter: FilterFn,
-    pub(super) set_shared_filter_image: SetSharedFilterImage,
+    pub(super) set_shared_filter_image: SetImage,
     pub(super) unset_filter_image: UnsetFilterImage,
     pub(super) set_filter_bool: SetFilterBool,
     pub(super) set_filter_int: SetFilterInt,

@@ -485,8 +485,6 @@ impl SequenceJob {
             oidn.retain(|&k, _| k + r > pos);
             features.retain(|&k, _| k + r > pos);
             rendered.retain(|&k, _| k + r > pos);
-            // the bands' memory back before the next frame's guide and decoding
-            super::memory::release_free_memory();
             progress((done + 1) as f64, frames);
         }
         Ok(report)

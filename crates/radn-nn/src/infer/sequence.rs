@@ -16,9 +16,10 @@ use crate::profile::{self, timed, Stage};
 use super::NetworkDenoiser;
 
 /// Pixels of output per band when a frame goes band by band: a 512-pixel tile's row on frames
-/// up to 2048 pixels wide, 256 rows at 4K and 128 at 8K, so a band's memory stays about the
-/// same whatever the width (`docs/research/guided-speed.md`, "Memory").
+/// up to 2048 pixels wide, about 270 rows at 4K and 135 at 8K, so a band's memory stays about
+/// the same whatever the width (`docs/research/guided-speed.md`, "Memory").
 const BAND_PIXELS: usize = 1 << 20;
+
 impl NetworkDenoiser {
     /// Whether the network's per-frame layers run once per frame as rendered and their
     /// features are warped into each window ([`crate::model::config::NetConfig::frame_local_stem`]).

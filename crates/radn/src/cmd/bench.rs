@@ -266,10 +266,7 @@ fn oidn(
     device: radn_nn::device::ComputeDevice,
 ) -> Result<()> {
     use radn_core::guide::{OidnDenoiser, OidnDevice, OidnSettings, Prefilter};
-    let kind = match device {
-        radn_nn::device::ComputeDevice::Cpu => OidnDevice::Cpu,
-        radn_nn::device::ComputeDevice::Cuda(n) => OidnDevice::Cuda(n),
-    };
+    let kind: OidnDevice = device.into();
     let mut d = OidnDenoiser::on(kind, 0)?;
     let (f, _) = reader.read(path)?;
     let (w, h) = (f.color.width(), f.color.height());
