@@ -19,6 +19,7 @@ use half::f16;
 use radn_core::align::warp::Resampling;
 use radn_core::align::{align_window, AlignParams};
 use radn_core::guide::{GuideChoice, JobGuides, OidnGuides};
+use radn_core::io::exr_file::ExrFile;
 use radn_core::io::frame::{FrameReader, Requirements};
 use radn_core::io::mapping::ChannelMapping;
 use radn_core::io::sequence::{scene_folders, SequencePattern};
@@ -242,7 +243,7 @@ pub fn prepare(
             let p = SequencePattern::from_folder(&dir)?;
             Ok(Some(numbers.iter().map(|&f| p.path(f)).collect()))
         };
-        let mapping = ChannelMapping::builtin("cycles").expect("built-in preset");
+        let mapping = scene_mapping(&pattern.path(numbers[0]))?;
         let mut input_reader = FrameReader::new(mapping.clone(), Requirements::DENOISE);
         input_reader.guide = opts.guide.layer();
         let pseudo_reader = FrameReader::new(mapping, Requirements::COLOR_ONLY);
@@ -378,6 +379,19 @@ pub fn prepare(
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::io::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;
     Ok(manifest)
+}
+
+/// The channel preset a scene's frames fit (Cycles' layers, the generic layout), read from one
+/// row of its first frame, so one tile set mixes renderers.
+fn scene_mapping(probe: &Path) -> Result<ChannelMapping> {
+    let names = ExrFile::read_rows(probe, 0..1)?.channel_names();
+    ChannelMapping::detect(&names).ok_or_else(|| {
+        NnError::Config(format!(
+            "'{}': no channel preset fits its channels ({})",
+            probe.display(),
+            names.join(", ")
+        ))
+    })
 }
 
 fn io_err(p: &Path, e: std::io::Error) -> NnError {
