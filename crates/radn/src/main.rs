@@ -42,6 +42,8 @@ enum Command {
     Denoise(cmd::denoise::Args),
     /// Show an EXR's parts, channels, types, size and value statistics.
     Inspect(cmd::inspect::Args),
+    /// Show a model file's network and recipe, or write a copy with its recipe tuned.
+    Model(cmd::model::Args),
     /// Write the aligned (warped, confidence-weighted) window of one frame to an EXR.
     Warp(cmd::warp::Args),
     /// Compare a result sequence with a reference: PSNR, SSIM, relMSE, tMAE, tPSNR.
@@ -133,6 +135,7 @@ fn main() -> std::process::ExitCode {
     let result = match cli.command {
         Command::Denoise(a) => cmd::denoise::run(a),
         Command::Inspect(a) => cmd::inspect::run(a),
+        Command::Model(a) => cmd::model::run(a),
         Command::Warp(a) => cmd::warp::run(a),
         Command::Eval(a) => cmd::eval::run(a),
         Command::Bench(a) => cmd::bench::run(a),

@@ -19,9 +19,9 @@ pub const DEFAULT_MODEL: &[u8] = include_bytes!("../../../models/default.safeten
 /// The name errors and reports use for the compiled-in unguided model.
 pub const DEFAULT_MODEL_NAME: &str = "<built-in default model>";
 
-/// The guided model compiled in like the default (`models/guided-lean.safetensors`, card
-/// `models/guided-lean.md`): what runs over OIDN when no `--model` is given.
-pub const GUIDED_MODEL: &[u8] = include_bytes!("../../../models/guided-lean.safetensors");
+/// The guided model compiled in like the default (`models/guided-mix.safetensors`, card
+/// `models/guided-mix.md`): what runs over OIDN when no `--model` is given.
+pub const GUIDED_MODEL: &[u8] = include_bytes!("../../../models/guided-mix.safetensors");
 
 /// The name errors and reports use for the compiled-in guided model.
 pub const GUIDED_MODEL_NAME: &str = "<built-in guided model>";

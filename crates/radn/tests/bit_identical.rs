@@ -75,6 +75,17 @@ const CASES: &[(&str, &[&str])] = &[
         "guided-banded",
         &["--guide", "oidn", "--bands", "always", "--tile", "64"],
     ),
+    // the previous compiled-in guided model, from its file (tests run in crates/radn): its
+    // outputs are pinned to what they were when it was compiled in
+    (
+        "guided-lean-file",
+        &[
+            "--guide",
+            "oidn",
+            "--model",
+            "../../models/guided-lean.safetensors",
+        ],
+    ),
 ];
 
 /// Runs every case on `input` (a pattern) with `extra` options, and returns `name hash` lines.
@@ -130,7 +141,7 @@ fn every_path_is_bit_identical_on_the_sample() {
     let work = tempfile::tempdir().unwrap();
     let input = format!("{}/low/frame_####.exr", sample().display());
     let mut got = run_cases(&input, &[], work.path(), "");
-    // AOVs and alpha through the guided path (with its temporal pass) and the unguided one
+    // AOVs and alpha through the guided path and the unguided one
     let aovs_in = with_aovs(work.path(), 0.25);
     for (name, opts) in [
         ("guided-aovs", ["--guide", "oidn"]),

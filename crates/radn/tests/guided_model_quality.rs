@@ -1,6 +1,6 @@
 //! The guided models against Intel Open Image Denoise and the default model on the shipped
 //! Cycles sample (frames 3–7 against 1024 spp), so a weaker guided model cannot be shipped by
-//! mistake: the one compiled into `radn` (models/guided-lean.safetensors, run by `--guide`
+//! mistake: the one compiled into `radn` (models/guided-mix.safetensors, run by `--guide`
 //! without `--model`) and the larger one that ships as a file (models/guided.safetensors).
 //! OIDN here is the same prefiltered OIDN the guides are (`radn_core::guide`).
 //!
@@ -33,24 +33,11 @@ const GATES: [(&str, f64, f64, f64); 3] = [
     ("high", -0.05, 1.02, 1.4),
 ];
 
-/// The same for the compiled-in guided model (models/guided-lean.safetensors) with the default
-/// guide mix and its outlier ramp, measured 32.47 / 34.51 / 36.82 dB and tMAE 0.0176 / 0.0145 /
-/// 0.0115 (0.90 / 0.94 / 0.97 of OIDN's); 1.05 / 1.34 / 1.63 dB over the stage-7 default. With
-/// the guide confidence (the default since 2026-12-04) 32.46 / 34.51 / 36.83 dB and 0.0177 /
-/// 0.0145 / 0.0115; the large model 32.52 / 34.47 / 36.73 dB. Retrained for Catmull-Rom
-/// resampling (the weights since 2026-12-04) 32.53 / 34.50 / 36.81 dB and 0.0175 / 0.0145 /
-/// 0.0114. With the window guide's range term and the mix at 0.7 (the defaults since
-/// 2026-12-05) 32.53 / 34.64 / 36.93 dB and 0.0175 / 0.0142 / 0.0114 (0.90 / 0.92 / 0.97 of
-/// OIDN's); the gates at 11 and 32 spp were raised from 0.15 and 0.05 dB then. With the sampled
-/// buffers' confidence terms loosened by the noise level (the default since 2026-12-05,
-/// `--loosen-confidence`) 32.88 / 34.79 / 36.93 dB and 0.0166 / 0.0139 / 0.0114 (0.85 / 0.90 /
-/// 0.97 of OIDN's); the gates at 4 and 11 spp were raised from 0.35 / 0.92 and 0.3 / 0.95 then.
-/// Without the ramp it was 32.45 / 34.51 / 36.78 dB; without the mix 32.30 / 34.28 / 36.08 dB,
-/// 0.58 dB behind OIDN at 32 spp. With the temporal pass over the results (`--stabilize`, on
-/// for guided runs since 2026-12-05) 32.82 / 34.75 / 36.90 dB and 0.0167 / 0.0140 / 0.0115
-/// (0.86 / 0.91 / 0.97 of OIDN's): 0.03–0.06 dB and up to 1% of tMAE behind the run without
-/// it on this scene, whose frames the pass barely finds flicker in; the large model 32.68 /
-/// 34.59 / 36.82 dB and 0.0170 / 0.0143 / 0.0117.
+/// The same for the compiled-in guided model (models/guided-mix.safetensors, card
+/// models/guided-mix.md) with its recipe, measured 32.93 / 34.83 / 36.95 dB and tMAE 0.0166 /
+/// 0.0139 / 0.0113 (0.85 / 0.90 / 0.96 of OIDN's) in `scripts/eval-transfer`; the gates are
+/// the previous compiled-in model's (models/guided-lean.safetensors), which it passes. Every
+/// earlier measurement: docs/research/model-history.md.
 const LEAN_GATES: [(&str, f64, f64, f64); 3] = [
     ("low", 0.6, 0.88, 0.95),
     ("half", 0.4, 0.93, 1.3),
@@ -108,7 +95,7 @@ fn the_compiled_in_guided_model_beats_oidn_and_the_default_at_every_level_on_the
     let models: [(&str, Vec<&str>, _); 2] = [
         ("guided", vec!["--guide", "oidn", "--model", &large], GATES),
         (
-            "compiled-in guided-lean",
+            "compiled-in guided model",
             vec!["--guide", "oidn"],
             LEAN_GATES,
         ),

@@ -204,12 +204,17 @@ mod tests {
         let (_, recipe) = read_header(&p).unwrap();
         assert_eq!(recipe, d.recipe);
         assert_eq!(load(&p, &device).unwrap().recipe, d.recipe);
-        // the shipped files carry none: each gets the recipe of its kind
+        // files saved before recipes existed carry none: each gets the recipe of its kind
         let shipped = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
         let (config, recipe) = read_header(&shipped.join("guided-lean.safetensors")).unwrap();
         assert!(config.inputs.guide);
         assert_eq!(recipe, Recipe::tuned_for(&config));
         assert!(recipe.stabilize.is_some() && recipe.confidence.guide.is_some());
+        // the compiled-in guided model carries the recipe chosen for it on validation data
+        let (config, recipe) = read_header(&shipped.join("guided-mix.safetensors")).unwrap();
+        assert!(config.inputs.guide && recipe != Recipe::tuned_for(&config));
+        assert!(recipe.stabilize.is_none() && recipe.input_blend.is_none());
+        assert_eq!(recipe.guide_mix, Recipe::tuned_for(&config).guide_mix);
         let (_, recipe) = read_header(&shipped.join("default.safetensors")).unwrap();
         assert_eq!(recipe, tuned);
         assert!(recipe.stabilize.is_none() && recipe.confidence.color.is_some());
