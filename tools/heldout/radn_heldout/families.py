@@ -4,7 +4,18 @@ import math
 
 import bpy
 
-from .scenes import _rgb, box, camera, emitter, label, light, material, rod, world, key_each_frame
+from .scenes import (
+    box,
+    camera,
+    emitter,
+    key_each_frame,
+    label,
+    light,
+    material,
+    random_rgb,
+    rod,
+    world,
+)
 
 WORDS = ("ISBN 0-1", "VOL. III", "NOTES", "RADN", "No. 42", "FIELD GUIDE", "ATLAS", "LOG 7")
 
@@ -12,7 +23,7 @@ WORDS = ("ISBN 0-1", "VOL. III", "NOTES", "RADN", "No. 42", "FIELD GUIDE", "ATLA
 def shelves(rng, frames):
     """Books of random sizes on three boards, lit through a window at the side; a sideways dolly."""
     wood = material("wood", (0.45, 0.27, 0.12), 0.45, texture="wave", bump=0.15, scale=float(rng.uniform(3, 9)))
-    wall = material("wall", _rgb(rng, 0.5, 0.85), 0.8, texture="gabor", bump=0.05, scale=40.0)
+    wall = material("wall", random_rgb(rng, 0.5, 0.85), 0.8, texture="gabor", bump=0.05, scale=40.0)
     box((8, 8, 0.1), (0, 0, 0), material("floor", (0.3, 0.22, 0.15), 0.3, texture="wave", scale=2.0))
     box((8, 0.1, 4), (0, 1.2, 2), wall)
     box((0.1, 8, 4), (-3.2, 0, 2), wall)
@@ -24,7 +35,7 @@ def shelves(rng, frames):
             w, h = rng.uniform(0.04, 0.12), rng.uniform(0.3, 0.55)
             tilt = rng.uniform(-0.25, 0.0) if rng.random() < 0.1 else 0.0
             box((w, rng.uniform(0.3, 0.45), h), (x + w / 2, 0.9, z + 0.02 + h / 2),
-                material(f"book{books}", _rgb(rng), rng.uniform(0.2, 0.7)), rot=(0, tilt, 0))
+                material(f"book{books}", random_rgb(rng), rng.uniform(0.2, 0.7)), rot=(0, tilt, 0))
             if rng.random() < 0.2:
                 label(str(rng.choice(WORDS)), (x + w / 2 + 0.01, 0.64, z + 0.05), w * 0.6,
                       material("ink", (0.9, 0.85, 0.6), 0.3), rot=(math.pi / 2, -math.pi / 2, 0))
@@ -52,7 +63,7 @@ def facade(rng, frames):
     x0, n = -9.0, 0
     while x0 < 9.0:
         w, h = rng.uniform(3, 6), rng.uniform(5, 12)
-        box((w, 3, h), (x0 + w / 2, 4, h / 2), material(f"wall{n}", _rgb(rng, 0.3, 0.8), 0.8, texture="wave",
+        box((w, 3, h), (x0 + w / 2, 4, h / 2), material(f"wall{n}", random_rgb(rng, 0.3, 0.8), 0.8, texture="wave",
                                                          bump=0.1, scale=float(rng.uniform(10, 30))))
         cols, rows = int(w / 1.1), int(h / 1.6)
         for c in range(cols):
@@ -76,13 +87,13 @@ def facade(rng, frames):
 def tabletop(rng, frames):
     """Glass, copper, wax and small print on a turntable over a cloth, under two soft boxes."""
     world((0.8, 0.85, 0.9), float(rng.uniform(0.05, 0.2)))
-    box((6, 6, 0.1), (0, 0, -0.05), material("cloth", _rgb(rng, 0.2, 0.8), 0.9, texture="magic", bump=0.2,
+    box((6, 6, 0.1), (0, 0, -0.05), material("cloth", random_rgb(rng, 0.2, 0.8), 0.9, texture="magic", bump=0.2,
                                               scale=float(rng.uniform(15, 40))))
     turn = bpy_empty()
     objs = [("glass", material("glass", (0.95, 0.97, 1.0), 0.0, glass=1.0)),
             ("copper", material("copper", (0.95, 0.55, 0.35), float(rng.uniform(0.1, 0.35)), metal=1.0)),
             ("wax", material("wax", (0.9, 0.75, 0.6), 0.5, wax=0.6)),
-            ("ceramic", material("ceramic", _rgb(rng), 0.15, texture="voronoi", scale=12.0))]
+            ("ceramic", material("ceramic", random_rgb(rng), 0.15, texture="voronoi", scale=12.0))]
     for i, (kind, mat) in enumerate(objs):
         a = i * math.pi / 2 + rng.uniform(-0.3, 0.3)
         loc = (0.55 * math.cos(a), 0.55 * math.sin(a), 0.0)
@@ -105,7 +116,7 @@ def tabletop(rng, frames):
 def haze(rng, frames):
     """A hazy room: a spot light through slatted blinds casts beams; balls roll across the floor."""
     world((0.01, 0.01, 0.015), 1.0)
-    wall = material("plaster", _rgb(rng, 0.5, 0.8), 0.9)
+    wall = material("plaster", random_rgb(rng, 0.5, 0.8), 0.9)
     box((8, 8, 0.1), (0, 0, 0), material("boards", (0.35, 0.25, 0.18), 0.4, texture="wave", scale=3.0, bump=0.1))
     box((8, 0.1, 4), (0, 2.5, 2), wall)
     for size, loc in (((0.1, 3.5, 4), (2.5, -2.25, 2)), ((0.1, 3.4, 4), (2.5, 2.8, 2)),
@@ -124,7 +135,7 @@ def haze(rng, frames):
     nt.links.new(vol.outputs[0], nt.nodes["Material Output"].inputs["Volume"])
     box((5, 5, 3.9), (0, 0, 2.0), fog)
     for i in range(int(rng.integers(2, 5))):
-        ball = add_ball(rng, material(f"ball{i}", _rgb(rng), float(rng.uniform(0.05, 0.5)), metal=float(rng.random() < 0.3)))
+        ball = add_ball(rng, material(f"ball{i}", random_rgb(rng), float(rng.uniform(0.05, 0.5)), metal=float(rng.random() < 0.3)))
         x0, y0, v = rng.uniform(-1.5, 1.0), rng.uniform(-1.0, 1.5), rng.uniform(-0.06, 0.06, 2)
         key_each_frame(ball, "location", frames,
                        lambda t, x0=x0, y0=y0, v=v, z=ball.location[2]: (x0 + v[0] * t * 10, y0 + v[1] * t * 10, z))
@@ -133,6 +144,7 @@ def haze(rng, frames):
 
 
 def bpy_empty():
+    """An empty object (the turntable the tabletop's objects are parented to)."""
     o = bpy.data.objects.new("turntable", None)
     bpy.context.collection.objects.link(o)
     return o
@@ -155,6 +167,7 @@ def add_shape(rng, loc, mat):
 
 
 def add_ball(rng, mat):
+    """A smooth ball resting on the floor at the origin (its motion is keyed later)."""
     r = rng.uniform(0.1, 0.25)
     bpy.ops.mesh.primitive_uv_sphere_add(radius=r, location=(0, 0, r), segments=32, ring_count=16)
     o = bpy.context.object

@@ -8,7 +8,7 @@ import time
 
 import bpy
 
-from . import LEVELS, REFERENCE
+from . import REFERENCE
 
 
 def sampling_seed(scene_seed: int, level: str, frame: int) -> int:
@@ -67,7 +67,10 @@ def render_scene(scene, out_dir, seed, frames, levels, reference_spp, reference_
 def write_manifest(out_dir, info):
     """The scene's manifest.json, written atomically and merged with what an earlier run wrote."""
     path = os.path.join(out_dir, "manifest.json")
-    old = json.load(open(path)) if os.path.exists(path) else {}
+    old = {}
+    if os.path.exists(path):
+        with open(path) as f:
+            old = json.load(f)
     seconds = {**old.get("seconds_per_frame", {}), **info.pop("seconds_per_frame", {})}
     old.update(info, seconds_per_frame=seconds)
     with open(path + ".tmp", "w") as f:

@@ -51,6 +51,7 @@ def material(name, color, rough=0.5, metal=0.0, glass=0.0, wax=0.0, texture=None
 
 
 def emitter(name, color, strength):
+    """An emission-only material (a window, a lamp's face)."""
     m = bpy.data.materials.new(name)
     m.use_nodes = True
     nt = m.node_tree
@@ -127,6 +128,7 @@ def camera(frames, start, end, target_start, target_end, lens):
 
 
 def light(kind, loc, energy, color=(1, 1, 1), size=1.0, rot=(0, 0, 0), spot=0.6):
+    """A lamp of Blender's `kind` (AREA, SPOT, POINT, SUN) with small, sharp shadows."""
     d = bpy.data.lights.new(kind, type=kind)
     d.energy, d.color = energy, color
     if kind == "AREA":
@@ -160,5 +162,6 @@ def world(color=None, strength=1.0, sky=None):
         bg.inputs["Color"].default_value = (*color, 1.0)
 
 
-def _rgb(rng, lo=0.05, hi=0.85):
+def random_rgb(rng, lo=0.05, hi=0.85):
+    """A colour with each channel drawn from [lo, hi)."""
     return tuple(float(x) for x in rng.uniform(lo, hi, 3))
