@@ -250,7 +250,8 @@ fn denoise_help_fits_a_screen_under_headings_and_tune_help_lists_the_recipe() {
             .collect::<Vec<_>>()
     };
     assert_eq!(line("mix.weight")[1..3], ["0.7", "0"]);
-    assert_eq!(line("stabilize")[1..3], ["0.3", "off"]);
+    assert_eq!(line("stabilize")[1..3], ["off", "off"]);
+    assert_eq!(line("input-blend")[1..3], ["off", "auto"]);
     assert_eq!(line("confidence.color")[1..3], ["off", "0.5"]);
     assert_eq!(line("classic.nlm-strength")[1], "0.45");
 }
