@@ -190,6 +190,19 @@ pub fn tune_pairs(tune: &[String]) -> Result<Vec<(&str, &str)>> {
         .collect()
 }
 
+/// Refuses a kernel threshold outside [0, 1/K) for a network with K taps: past 1/K every
+/// kernel would fall back to the identity.
+pub fn check_threshold(t: f32, config: &radn_nn::model::config::NetConfig) -> Result<()> {
+    let taps = config.kernel_taps() as f32;
+    if !(0.0..1.0 / taps).contains(&t) {
+        anyhow::bail!(
+            "--tune threshold={t} must be in [0, 1/K) = [0, {:.5}) for this model",
+            1.0 / taps
+        );
+    }
+    Ok(())
+}
+
 /// The classic denoiser with `--tune classic.KEY=VALUE` applied (any other key is an error:
 /// it tunes the network).
 pub fn classic_tuned(tune: &[String]) -> Result<radn_core::ClassicDenoiser> {

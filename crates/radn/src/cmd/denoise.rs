@@ -12,7 +12,7 @@ use radn_core::setting::Setting;
 use radn_nn::device::ComputeDevice;
 use radn_nn::infer::NetworkDenoiser;
 
-use crate::input::{classic_tuned, tune_pairs, ChannelArgs};
+use crate::input::{check_threshold, classic_tuned, tune_pairs, ChannelArgs};
 use crate::model::{choose_path, GuideRequest};
 
 /// Denoising methods.
@@ -324,12 +324,7 @@ fn network_from(a: &Args, mut n: NetworkDenoiser) -> Result<NetworkDenoiser> {
     }
     let taps = n.denoiser.config.kernel_taps() as f32;
     let t = n.threshold();
-    if !(0.0..1.0 / taps).contains(&t) {
-        bail!(
-            "--tune threshold={t} must be in [0, 1/K) = [0, {:.5}) for this model",
-            1.0 / taps
-        );
-    }
+    check_threshold(t, &n.denoiser.config)?;
     if a.strength != 1.0 {
         // the paper's threshold, normalised by the kernel's taps and divided by the strength;
         // past 1/K every kernel falls back to the identity, so it stops just below

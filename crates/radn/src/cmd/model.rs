@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use anyhow::{bail, Context, Result};
 use radn_nn::device::ComputeDevice;
 
-use crate::input::tune_pairs;
+use crate::input::{check_threshold, tune_pairs};
 
 /// Arguments of `radn model`.
 #[derive(clap::Args)]
@@ -41,12 +41,8 @@ pub fn run(a: Args) -> Result<()> {
     for (key, value) in tune_pairs(&a.tune)? {
         model.recipe.set(key, value).map_err(anyhow::Error::msg)?;
     }
-    let taps = model.config.kernel_taps() as f32;
-    if let Some(t) = model.recipe.threshold.filter(|t| *t >= 1.0 / taps) {
-        bail!(
-            "--tune threshold={t} must be in [0, 1/K) = [0, {:.5}) for this model",
-            1.0 / taps
-        );
+    if let Some(t) = model.recipe.threshold {
+        check_threshold(t, &model.config)?;
     }
     radn_nn::model::store::save(&model, &out)
         .with_context(|| format!("writing the tuned model to '{}'", out.display()))?;
