@@ -18,6 +18,7 @@ use std::path::{Path, PathBuf};
 use half::f16;
 use radn_core::align::warp::Resampling;
 use radn_core::align::{align_window, AlignParams};
+use radn_core::guide::oidn_settings::OidnSettings;
 use radn_core::guide::{GuideChoice, JobGuides, OidnGuides};
 use radn_core::io::exr_file::ExrFile;
 use radn_core::io::frame::{FrameReader, Requirements};
@@ -69,6 +70,8 @@ pub struct PrepareOptions {
     pub guide: GuideChoice,
     /// Threads of Intel Open Image Denoise, for `guide` `oidn` (0: every core).
     pub oidn_threads: usize,
+    /// How OIDN makes the `oidn` guides; a model trained on them keeps these in its recipe.
+    pub oidn: OidnSettings,
     /// Alignment's guide term ([`radn_core::align::confidence::ConfidenceParams::guide`]) for the
     /// stored windows, so a guided network can train on windows aligned as a guided
     /// model's recipe aligns them; `None`: the geometric terms alone.
@@ -100,6 +103,7 @@ impl PrepareOptions {
             pseudo_level: default_pseudo_level(),
             guide: GuideChoice::None,
             oidn_threads: 0,
+            oidn: OidnSettings::default(),
             guide_confidence: None,
             resampling: Resampling::Bilinear,
             loosen_sampled_terms: None,
@@ -149,6 +153,10 @@ pub struct Manifest {
     /// without guides (all before format 3).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub guide: Option<String>,
+    /// How OIDN made the `oidn` guides ([`PrepareOptions::oidn`]); absent: OIDN's final-frame
+    /// mode (every tile set before it was recorded).
+    #[serde(default, skip_serializing_if = "OidnSettings::is_default")]
+    pub oidn: OidnSettings,
     /// The guide term's tolerance the windows were aligned with
     /// ([`PrepareOptions::guide_confidence`]); none without it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -215,13 +223,17 @@ pub fn prepare(
     opts: &PrepareOptions,
     mut progress: impl FnMut(usize, usize),
 ) -> Result<Manifest> {
-    let scenes = scene_folders(data, "high")?;
+    let scenes = scenes_fitting(scene_folders(data, "high")?, opts.tile)?;
     std::fs::create_dir_all(out).map_err(|e| io_err(out, e))?;
     clear_tile_folder(out)?;
     let guided = opts.guide.is_some();
     let rb = record_bytes(opts.tile, opts.frames, TILE_FORMAT, guided);
     let oidn = match opts.guide {
-        GuideChoice::Oidn => Some(std::sync::Arc::new(OidnGuides::new(opts.oidn_threads)?)),
+        GuideChoice::Oidn => {
+            let g = OidnGuides::new(opts.oidn_threads)?;
+            g.configure(opts.oidn);
+            Some(std::sync::Arc::new(g))
+        }
         _ => None,
     };
     let mut align = AlignParams {
@@ -372,6 +384,10 @@ pub fn prepare(
             GuideChoice::Denoised => Some("denoised".into()),
             GuideChoice::Layer(l) => Some(l.clone()),
         },
+        oidn: match opts.guide {
+            GuideChoice::Oidn => opts.oidn,
+            _ => OidnSettings::default(),
+        },
         guide_confidence: align.confidence.guide,
         resampling: opts.resampling,
         loosen_sampled_terms: opts.loosen_sampled_terms,
@@ -383,6 +399,32 @@ pub fn prepare(
 
 /// The channel preset a scene's frames fit (Cycles' layers, the generic layout), read from one
 /// row of its first frame, so one tile set mixes renderers.
+/// The scenes whose frames hold a `tile`-pixel tile; the others are left out with a warning
+/// (a split may mix resolutions), and none left is an error. Read from the headers, before any
+/// work.
+fn scenes_fitting(scenes: Vec<PathBuf>, tile: usize) -> Result<Vec<PathBuf>> {
+    let mut kept = Vec::new();
+    for scene in scenes {
+        let pattern = SequencePattern::from_folder(&scene.join("high"))?;
+        let first = pattern.path(pattern.frames(None)?[0]);
+        let (w, h) = ExrFile::read_size(&first)?;
+        if w < tile || h < tile {
+            tracing::warn!(
+                "left out scene '{}': its frames are {w}x{h}, smaller than the {tile} px tile",
+                scene.display()
+            );
+        } else {
+            kept.push(scene);
+        }
+    }
+    if kept.is_empty() {
+        return Err(NnError::Config(format!(
+            "no scene's frames hold a {tile} px tile: choose a smaller --tile"
+        )));
+    }
+    Ok(kept)
+}
+
 fn scene_mapping(probe: &Path) -> Result<ChannelMapping> {
     let names = ExrFile::read_rows(probe, 0..1)?.channel_names();
     ChannelMapping::detect(&names).ok_or_else(|| {

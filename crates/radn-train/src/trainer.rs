@@ -191,6 +191,16 @@ impl Trainer {
                 }
             }
         }
+        if train.manifest.guide == val.manifest.guide && train.manifest.oidn != val.manifest.oidn {
+            return Err(NnError::Tiles {
+                path: base.join(&config.val),
+                detail: format!(
+                    "their OIDN guides were made with {} and the training tiles' with {}: \
+                     prepare both with the same --guide-quality and --guide-prefilter",
+                    val.manifest.oidn, train.manifest.oidn
+                ),
+            });
+        }
         let state_path = out.join("state.json");
         let (denoiser, optim, state) = if resume && state_path.exists() {
             let state: TrainState =
@@ -206,6 +216,10 @@ impl Trainer {
                 })?;
             // the Burnpack checkpoint keeps parameter ids, which the optimizer state is keyed by
             let mut d = Denoiser::new(net_cfg, device);
+            if let Some(init) = &config.init {
+                // the recipe a fine-tune started from, as a run that was never stopped keeps it
+                d.recipe = store::load(&base.join(init), device)?.recipe;
+            }
             let [mut ck, mut opt] = checkpoint_files(out, state.step);
             if !ck.exists() && out.join("checkpoint.bpk").exists() {
                 // a run from before checkpoint files were named by their step
@@ -259,6 +273,11 @@ impl Trainer {
                 },
             )
         };
+        let mut denoiser = denoiser;
+        if denoiser.config.inputs.guide && train.manifest.guide.as_deref() == Some("oidn") {
+            // a guided model runs on guides made as its training guides were
+            denoiser.recipe.guide = train.manifest.oidn;
+        }
         let loss_fn = match config.loss {
             PixelLoss::Vgg => {
                 let p = config.vgg_weights.as_ref().ok_or_else(|| {

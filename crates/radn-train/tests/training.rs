@@ -407,6 +407,22 @@ fn a_short_run_moves_every_layer_and_logs_each_layers_updates() {
 const MIN_RELATIVE_MOVE: f64 = 3e-2;
 
 #[test]
+fn a_tile_larger_than_every_scene_is_refused_before_any_work() {
+    // scenes smaller than the tile are left out (read from their headers); with none left the
+    // error says what to change, and the tile set already in the folder is untouched
+    let d = tempfile::tempdir().unwrap();
+    let out = d.path().join("tiles");
+    tiles(&out, 1, 1);
+    let before = std::fs::read(out.join("manifest.json")).unwrap();
+    let e = prepare(&sample(), &out, &PrepareOptions::new(4096, 1, 1), |_, _| {})
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("4096 px tile") && e.contains("--tile"), "{e}");
+    assert_eq!(std::fs::read(out.join("manifest.json")).unwrap(), before);
+    assert!(TileDataset::open(&out).is_ok());
+}
+
+#[test]
 fn a_prepare_that_stops_part_way_leaves_no_tile_set_that_looks_complete() {
     let d = tempfile::tempdir().unwrap();
     let out = d.path().join("tiles");
@@ -614,6 +630,84 @@ fn a_guided_network_trains_on_guided_tiles_and_refuses_tiles_without_guides() {
     .expect("unguided tiles were accepted")
     .to_string();
     assert!(e.contains("plain") && e.contains("--guide oidn"), "{e}");
+}
+
+#[test]
+fn a_model_trained_on_cheap_guides_keeps_their_settings_in_its_recipe() {
+    // `radn prepare --guide-prefilter off`: the manifest records how OIDN made the guides, the
+    // stored guides are those of one filter over the noisy auxiliaries (not the final-frame
+    // guides), a guided network trained on them takes the settings into its recipe, and
+    // validation tiles made another way are refused
+    use radn_core::guide::oidn_settings::{OidnSettings, Prefilter};
+    let Some(d) = guided_tile_sets() else { return };
+    let cheap = OidnSettings {
+        prefilter: Prefilter::Off,
+        ..OidnSettings::default()
+    };
+    for (set, seed) in [("train-cheap", 1), ("val-cheap", 2)] {
+        let opts = PrepareOptions {
+            guide: radn_core::guide::GuideChoice::Oidn,
+            oidn_threads: 2,
+            oidn: cheap,
+            ..PrepareOptions::new(32, 1, seed)
+        };
+        prepare(&sample(), &d.path().join(set), &opts, |_, _| {}).unwrap();
+    }
+    let (fine, rough) = (
+        TileDataset::open(&d.path().join("train")).unwrap(),
+        TileDataset::open(&d.path().join("train-cheap")).unwrap(),
+    );
+    assert!(fine.manifest.oidn.is_default());
+    assert_eq!(rough.manifest.oidn, cheap);
+    // same tiles, other guides: the colour is equal, the guides differ at 4 spp
+    let (a, b) = (fine.get(4).unwrap(), rough.get(4).unwrap());
+    assert_eq!(a.values[2], b.values[2]);
+    let (ga, gb) = (a.guides[2].as_ref().unwrap(), b.guides[2].as_ref().unwrap());
+    let diff = ga
+        .iter()
+        .zip(gb)
+        .map(|(x, y)| f64::from((x - y).abs()))
+        .sum::<f64>()
+        / ga.len() as f64;
+    assert!(
+        diff > 1e-4,
+        "the noisy-auxiliary guides equal the prefiltered ones ({diff})"
+    );
+    let device = Device::flex().autodiff();
+    let mut net = radn_nn::NetConfig::preset("small").unwrap();
+    net.name = "small-guided".into();
+    net.inputs.exposure = true;
+    net.inputs.guide = true;
+    std::fs::write(d.path().join("guided.toml"), net.to_toml()).unwrap();
+    let text = "model = \"guided.toml\"\ntrain = \"train-cheap\"\nval = \"val-cheap\"\nbatch = 2\nsteps = 1\nlr = 1e-3\nwarmup = 1\nvalidate_every = 1\nval_tiles = 1\nseed = 5\n";
+    let mut t = Trainer::new(
+        TrainConfig::parse(text).unwrap(),
+        d.path(),
+        &d.path().join("run-cheap"),
+        false,
+        &device,
+    )
+    .unwrap();
+    t.run(|_| {}).unwrap();
+    let saved = radn_nn::model::store::load(
+        &d.path().join("run-cheap/model.safetensors"),
+        &Device::flex(),
+    )
+    .unwrap();
+    assert_eq!(saved.recipe.guide, cheap);
+    // validation guides made otherwise than the training guides: refused, naming the flags
+    let text = text.replace("val = \"val-cheap\"", "val = \"val\"");
+    let e = Trainer::new(
+        TrainConfig::parse(&text).unwrap(),
+        d.path(),
+        &d.path().join("mixed"),
+        false,
+        &device,
+    )
+    .err()
+    .expect("guides of two kinds were accepted")
+    .to_string();
+    assert!(e.contains("--guide-prefilter") && e.contains("val"), "{e}");
 }
 
 /// Mean absolute difference of each pixel from the mean of its four neighbours over the side

@@ -3,6 +3,7 @@
 use std::path::PathBuf;
 
 use anyhow::Result;
+use radn_core::guide::oidn_settings::{OidnQuality, OidnSettings, Prefilter};
 use radn_core::setting::{Positive, Setting};
 use radn_train::dataset::{prepare, PrepareOptions};
 
@@ -33,6 +34,15 @@ pub struct Args {
     /// Open Image Denoise of that very render; `denoised` or a layer: read from the files).
     #[command(flatten)]
     pub guide: crate::input::GuideArgs,
+    /// With `--guide oidn`: OIDN's beauty filter quality (high, balanced, fast). A model
+    /// trained on these tiles keeps it in its recipe, so it is run on guides like these.
+    #[arg(long, value_name = "QUALITY", default_value = "high")]
+    pub guide_quality: OidnQuality,
+    /// With `--guide oidn`: how the albedo and normal are cleaned before the beauty filter
+    /// (high, balanced, fast; `off`: read noisy, one OIDN filter per frame). Kept in the
+    /// trained model's recipe like `--guide-quality`.
+    #[arg(long, value_name = "high|balanced|fast|off", default_value = "high")]
+    pub guide_prefilter: Prefilter,
     /// With a guide: align the stored windows with the guide term of the confidence, as a
     /// guided model's recipe does (`auto`: its tolerance; `off`, the default, as every shipped
     /// model's tiles were made: the geometric terms alone).
@@ -69,6 +79,10 @@ pub fn run(a: Args) -> Result<()> {
         pseudo_level: a.pseudo.clone(),
         guide: a.guide.guide.clone(),
         oidn_threads: a.guide.oidn_threads,
+        oidn: OidnSettings {
+            quality: a.guide_quality,
+            prefilter: a.guide_prefilter,
+        },
         guide_confidence: a
             .guide_confidence
             .resolve(recipe.confidence.guide.map(Positive))
@@ -92,7 +106,10 @@ pub fn run(a: Args) -> Result<()> {
         m.pseudo_level,
         m.guide
             .as_ref()
-            .map_or(String::new(), |g| format!(", guides: {g}")),
+            .map_or(String::new(), |g| match g.as_str() {
+                "oidn" => format!(", guides: oidn, {}", m.oidn),
+                _ => format!(", guides: {g}"),
+            }),
         a.out.display()
     );
     Ok(())
