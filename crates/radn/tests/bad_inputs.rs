@@ -416,3 +416,26 @@ fn repairs_in_the_inputs_are_reported_after_several_passes() {
         );
     }
 }
+
+#[test]
+fn oidn_guide_settings_without_an_oidn_guide() {
+    // `radn prepare --guide-prefilter off` without `--guide oidn` would make tiles with no such
+    // guides: refused before any work, naming the flag it needs
+    let d = tempfile::tempdir().unwrap();
+    sequence(d.path(), 3);
+    let out = d.path().join("tiles");
+    let e = fails(
+        d.path(),
+        &[
+            "prepare",
+            "--data",
+            d.path().to_str().unwrap(),
+            "--out",
+            out.to_str().unwrap(),
+            "--guide-prefilter",
+            "off",
+        ],
+    );
+    assert!(e.contains("--guide oidn"), "{e}");
+    assert!(!out.exists());
+}

@@ -64,6 +64,16 @@ pub struct Args {
 
 /// Cuts the tiles.
 pub fn run(a: Args) -> Result<()> {
+    let oidn = OidnSettings {
+        quality: a.guide_quality,
+        prefilter: a.guide_prefilter,
+    };
+    if !oidn.is_default() && a.guide.guide != radn_core::guide::GuideChoice::Oidn {
+        anyhow::bail!(
+            "--guide-quality and --guide-prefilter say how OIDN makes the guides: they need \
+             --guide oidn"
+        );
+    }
     let scenes = radn_core::io::sequence::scene_folders(&a.data, "high")?.len();
     let pb = crate::progress::frames(scenes as u64, "scenes");
     // `auto` takes the values a model of this kind is tuned with: its recipe
@@ -79,10 +89,7 @@ pub fn run(a: Args) -> Result<()> {
         pseudo_level: a.pseudo.clone(),
         guide: a.guide.guide.clone(),
         oidn_threads: a.guide.oidn_threads,
-        oidn: OidnSettings {
-            quality: a.guide_quality,
-            prefilter: a.guide_prefilter,
-        },
+        oidn,
         guide_confidence: a
             .guide_confidence
             .resolve(recipe.confidence.guide.map(Positive))
