@@ -51,13 +51,13 @@ def scene_resolution(seed: int):
     return w, int(round(w / aspect / 2) * 2)
 
 
-def render_one(seed, out, frames, res, levels, ref_spp, ref_frames, family=None, sampler=None):
+def render_one(seed, out, frames, res, levels, ref_spp, ref_frames, family=None, sampler=None, variance=False):
     shot = max(frames)
     tex = os.path.join(out, "textures")
     spec = scenes.build(seed, shot, res, family=family, tex_dir=tex, sampler=sampler)
-    render_scene(spec, out, frames, levels)
+    render_scene(spec, out, frames, levels, variance=variance)
     if ref_spp:
-        render_scene(spec, out, ref_frames or frames, {"ref": ref_spp})
+        render_scene(spec, out, ref_frames or frames, {"ref": ref_spp}, variance=variance)
     shutil.rmtree(tex, ignore_errors=True)
 
 
@@ -74,6 +74,8 @@ def main(argv=None):
     common.add_argument("--family", choices=scenes.FAMILIES, default=None, help="force a scene family")
     common.add_argument("--sampler", choices=["independent", "ldsampler"], default=None,
                         help="force the sampler (default: drawn from the seed)")
+    common.add_argument("--variance", action="store_true",
+                        help="also write variance.R/G/B, the variance of each pixel's mean")
     s = sub.add_parser("scene", parents=[common], help="render one scene")
     s.add_argument("--seed", type=int, required=True)
     s.add_argument("--out", required=True)
@@ -90,7 +92,7 @@ def main(argv=None):
     for seed in seeds:
         out = a.out if a.cmd == "scene" else os.path.join(a.out, f"scene_{seed}")
         res = _res(a.res) if a.res else scene_resolution(seed)
-        render_one(seed, out, frames, res, levels, a.reference_spp, ref_frames, a.family, a.sampler)
+        render_one(seed, out, frames, res, levels, a.reference_spp, ref_frames, a.family, a.sampler, a.variance)
     return 0
 
 

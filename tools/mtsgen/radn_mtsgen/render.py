@@ -1,6 +1,8 @@
 """Rendering a scene's frames at several sample counts into radn's generic EXR layout:
 `R,G,B,A`, `albedo.R/G/B` and `N.X/Y/Z` (averaged over each pixel's samples, box filter),
-`Z` (distance along the centre ray), `motion.X/Y` and `motion_next.X/Y` (exact, see motion.py).
+`Z` (distance along the centre ray), `motion.X/Y` and `motion_next.X/Y` (exact, see motion.py), and
+with `variance=True` `variance.R/G/B`: the variance of each pixel's mean, from the second moment
+of its samples (what production renderers write as variance AOVs for denoisers).
 Every file is written to a temporary name and renamed, so a stopped run leaves only whole frames
 and a re-run skips them."""
 
@@ -77,13 +79,16 @@ def denoiser_albedo(albedo, normal, environment, emitted):
 
 def render_layers(scene, spp: int, seed: int, environment=(0.0, 0.0, 0.0), emitted=None) -> dict:
     """Beauty, albedo and shading normal of one render, as generic-layout channels (`emitted`:
-    per pixel the radiance of the light its centre ray sees, NaN elsewhere)."""
+    per pixel the radiance of the light its centre ray sees, NaN elsewhere); and the variance of
+    the beauty's pixel means where `scene` was loaded with SceneSpec.dict_at(variance=True)."""
     mi = mitsuba()
     mi.render(scene, spp=spp, seed=seed)
-    layers = dict(scene.sensors()[0].film().bitmap().split())
-    beauty = np.array(layers["<root>"], dtype=np.float32)
-    albedo = np.array(layers["albedo"], dtype=np.float32)
-    normal = np.array(layers["nn"], dtype=np.float32)
+    layers = {k: np.array(v, dtype=np.float32) for k, v in scene.sensors()[0].film().bitmap().split()}
+    moment = "m.img" in layers  # wrapped in the moment integrator: its layers carry a prefix
+    pre = "m." if moment else ""
+    beauty = layers[f"{pre}img"][..., :3] if moment else layers["<root>"]
+    albedo = layers[f"{pre}albedo"]
+    normal = layers[f"{pre}nn"]
     if emitted is None:
         emitted = np.full(beauty.shape, np.nan, np.float32)
     albedo = denoiser_albedo(albedo, normal, environment, emitted)
@@ -94,12 +99,21 @@ def render_layers(scene, spp: int, seed: int, environment=(0.0, 0.0, 0.0), emitt
     bad = sum(int((~np.isfinite(v)).sum()) for v in out.values())
     if bad:  # rare fireflies of NaN in Mitsuba's output: zero them, as a renderer's film would
         out = {k: np.nan_to_num(v, nan=0.0, posinf=0.0, neginf=0.0) for k, v in out.items()}
-    return {k: v.astype(np.float16) for k, v in out.items()}
+    out = {k: v.astype(np.float16) for k, v in out.items()}
+    if moment:
+        # unbiased sample variance of the pixel's samples over spp: the variance of its mean
+        # (the box filter weighs a pixel's samples equally); float32, small values matter
+        second = layers["m2_m.img"][..., :3]
+        var = np.maximum(second - beauty * beauty, 0.0) / max(spp - 1, 1)
+        var = np.nan_to_num(var, nan=0.0, posinf=0.0, neginf=0.0)
+        out.update({f"variance.{c}": var[..., i].astype(np.float32) for i, c in enumerate("RGB")})
+    return out
 
 
-def render_scene(spec, out_dir: str, frames, levels: dict, log=print) -> dict:
-    """Renders `frames` of `spec` at each level (name → spp) into out_dir/<level>/frame_####.exr;
-    returns the manifest it writes (out_dir/manifest.json)."""
+def render_scene(spec, out_dir: str, frames, levels: dict, log=print, variance: bool = False) -> dict:
+    """Renders `frames` of `spec` at each level (name → spp) into out_dir/<level>/frame_####.exr,
+    with `variance.R/G/B` where `variance`; returns the manifest it writes
+    (out_dir/manifest.json)."""
     mi = mitsuba()
     manifest_path = os.path.join(out_dir, "manifest.json")
     manifest = {"seed": spec.seed, "generator_version": GENERATOR_VERSION, "renderer": f"mitsuba {mi.__version__} {mi.variant()}",
@@ -112,13 +126,17 @@ def render_scene(spec, out_dir: str, frames, levels: dict, log=print) -> dict:
             raise SystemExit(f"{out_dir}: rendered by generator version {old.get('generator_version', 1)}, "
                              f"this is {GENERATOR_VERSION}: render the scene again whole (remove the folder)")
         manifest["levels"] = old.get("levels", {})
+        if old.get("levels") and bool(old.get("variance")) != variance:
+            raise SystemExit(f"{out_dir}: rendered {'with' if old.get('variance') else 'without'} variance "
+                             f"channels, this run {'with' if variance else 'without'}: use another folder")
+    manifest["variance"] = variance
     for frame in frames:
         todo = {lv: spp for lv, spp in levels.items()
                 if not os.path.exists(os.path.join(out_dir, lv, f"frame_{frame:04d}.exr"))}
         if not todo:
             continue
         aux, emitted = aux_and_motion(spec, frame)
-        scene = mi.load_dict(spec.dict_at(frame))
+        scene = mi.load_dict(spec.dict_at(frame, variance=variance))
         for lv, spp in todo.items():
             t = time.perf_counter()
             chans = render_layers(scene, spp, seed_of(spec.seed, lv, frame), spec.environment(), emitted)

@@ -90,8 +90,9 @@ class SceneSpec:
                 return np.asarray(o.extra["emitter"]["radiance"]["value"], float)
         return None
 
-    def dict_at(self, frame: int, aovs: bool = True) -> dict:
-        """Mitsuba's scene dictionary at `frame`."""
+    def dict_at(self, frame: int, aovs: bool = True, variance: bool = False) -> dict:
+        """Mitsuba's scene dictionary at `frame`; with `variance`, the integrator wrapped in
+        Mitsuba's `moment` integrator (it also records its samples' second moment)."""
         from .backend import mitsuba
 
         mi = mitsuba()
@@ -111,6 +112,8 @@ class SceneSpec:
                          "rfilter": {"type": "box"}, "pixel_format": "rgb"},
             },
         }
+        if variance:
+            d["integrator"] = {"type": "moment", "m": d["integrator"]}
         d.update(self.emitters)
         for o in self.objects:
             s = dict(o.shape)

@@ -122,3 +122,25 @@ def test_albedo_follows_the_denoiser_convention_where_rays_miss_and_on_lights():
         layers = render.render_layers(mi.load_dict(interior.dict_at(2)), 4, 3, interior.environment(), emitted)
         got = np.stack([layers[f"albedo.{c}"] for c in "RGB"], -1).astype(np.float64)
         assert np.allclose(got[lit], emitted[lit], rtol=2e-3)
+
+
+def test_the_variance_channels_predict_the_spread_between_seeds():
+    s = spec("product", res=(48, 32))
+    mi = mitsuba()
+    assert "variance.R" not in render.render_layers(mi.load_dict(s.dict_at(2)), 4, 5, s.environment())
+    with_var = mi.load_dict(s.dict_at(2, variance=True))
+    # over 16 seeds, the mean predicted variance matches the pixels' spread between seeds
+    runs = [render.render_layers(with_var, 16, seed, s.environment()) for seed in range(16)]
+    beauty = np.stack([np.stack([r[c].astype(np.float32) for c in "RGB"]) for r in runs])
+    predicted = np.stack([np.stack([r[f"variance.{c}"] for c in "RGB"]) for r in runs]).mean(0)
+    spread = beauty.var(0, ddof=1)
+    assert predicted.dtype == np.float32 and (predicted >= 0).all()
+    ratio = predicted.mean() / spread.mean()
+    assert 0.8 < ratio < 1.25, ratio
+
+
+def test_a_folder_is_not_rendered_half_with_variance(tmp_path):
+    s = spec("product", res=(32, 24), frames=3)
+    render.render_scene(s, str(tmp_path), range(1, 2), {"low": 4}, log=lambda *_: None)
+    with pytest.raises(SystemExit, match="variance"):
+        render.render_scene(s, str(tmp_path), range(2, 3), {"low": 4}, log=lambda *_: None, variance=True)
