@@ -590,24 +590,38 @@ fn guided_tiles_hold_each_renders_own_oidn_guide() {
     }
 }
 
-#[test]
-fn a_guided_network_trains_on_guided_tiles_and_refuses_tiles_without_guides() {
-    let Some(d) = guided_tile_sets() else { return };
-    let device = Device::flex().autodiff();
+/// A trainer of a small guided network (written to `dir/guided.toml`) on the tile sets `train`
+/// and `val` in `dir` for `steps` steps (validating at the last), writing to `dir/run`.
+fn small_guided_trainer(
+    dir: &Path,
+    train: &str,
+    val: &str,
+    steps: usize,
+    run: &str,
+) -> Result<Trainer, impl std::fmt::Display + std::fmt::Debug> {
     let mut net = radn_nn::NetConfig::preset("small").unwrap();
     net.name = "small-guided".into();
     net.inputs.exposure = true;
     net.inputs.guide = true;
-    std::fs::write(d.path().join("guided.toml"), net.to_toml()).unwrap();
-    let text = "model = \"guided.toml\"\ntrain = \"train\"\nval = \"val\"\nbatch = 2\nsteps = 3\nlr = 1e-3\nwarmup = 1\nvalidate_every = 3\nval_tiles = 2\nseed = 5\n";
-    let mut t = Trainer::new(
-        TrainConfig::parse(text).unwrap(),
-        d.path(),
-        &d.path().join("run"),
+    std::fs::write(dir.join("guided.toml"), net.to_toml()).unwrap();
+    let val_tiles = steps.min(2);
+    let text = format!(
+        "model = \"guided.toml\"\ntrain = \"{train}\"\nval = \"{val}\"\nbatch = 2\nsteps = {steps}\n\
+         lr = 1e-3\nwarmup = 1\nvalidate_every = {steps}\nval_tiles = {val_tiles}\nseed = 5\n"
+    );
+    Trainer::new(
+        TrainConfig::parse(&text).unwrap(),
+        dir,
+        &dir.join(run),
         false,
-        &device,
+        &Device::flex().autodiff(),
     )
-    .unwrap();
+}
+
+#[test]
+fn a_guided_network_trains_on_guided_tiles_and_refuses_tiles_without_guides() {
+    let Some(d) = guided_tile_sets() else { return };
+    let mut t = small_guided_trainer(d.path(), "train", "val", 3, "run").unwrap();
     assert_eq!(t.denoiser.config.inputs.channels(), 11 + 3);
     let before = t.validate().unwrap().loss;
     t.run(|_| {}).unwrap();
@@ -618,17 +632,10 @@ fn a_guided_network_trains_on_guided_tiles_and_refuses_tiles_without_guides() {
     assert!(saved.inputs.guide, "the model file says it reads a guide");
     // tiles prepared without guides are refused, with what to do
     tiles(&d.path().join("plain"), 1, 1);
-    let text = text.replace("train = \"train\"", "train = \"plain\"");
-    let e = Trainer::new(
-        TrainConfig::parse(&text).unwrap(),
-        d.path(),
-        &d.path().join("bad"),
-        false,
-        &device,
-    )
-    .err()
-    .expect("unguided tiles were accepted")
-    .to_string();
+    let e = small_guided_trainer(d.path(), "plain", "val", 3, "bad")
+        .err()
+        .expect("unguided tiles were accepted")
+        .to_string();
     assert!(e.contains("plain") && e.contains("--guide oidn"), "{e}");
 }
 
@@ -673,21 +680,7 @@ fn a_model_trained_on_cheap_guides_keeps_their_settings_in_its_recipe() {
         diff > 1e-4,
         "the noisy-auxiliary guides equal the prefiltered ones ({diff})"
     );
-    let device = Device::flex().autodiff();
-    let mut net = radn_nn::NetConfig::preset("small").unwrap();
-    net.name = "small-guided".into();
-    net.inputs.exposure = true;
-    net.inputs.guide = true;
-    std::fs::write(d.path().join("guided.toml"), net.to_toml()).unwrap();
-    let text = "model = \"guided.toml\"\ntrain = \"train-cheap\"\nval = \"val-cheap\"\nbatch = 2\nsteps = 1\nlr = 1e-3\nwarmup = 1\nvalidate_every = 1\nval_tiles = 1\nseed = 5\n";
-    let mut t = Trainer::new(
-        TrainConfig::parse(text).unwrap(),
-        d.path(),
-        &d.path().join("run-cheap"),
-        false,
-        &device,
-    )
-    .unwrap();
+    let mut t = small_guided_trainer(d.path(), "train-cheap", "val-cheap", 1, "run-cheap").unwrap();
     t.run(|_| {}).unwrap();
     let saved = radn_nn::model::store::load(
         &d.path().join("run-cheap/model.safetensors"),
@@ -696,17 +689,10 @@ fn a_model_trained_on_cheap_guides_keeps_their_settings_in_its_recipe() {
     .unwrap();
     assert_eq!(saved.recipe.guide, cheap);
     // validation guides made otherwise than the training guides: refused, naming the flags
-    let text = text.replace("val = \"val-cheap\"", "val = \"val\"");
-    let e = Trainer::new(
-        TrainConfig::parse(&text).unwrap(),
-        d.path(),
-        &d.path().join("mixed"),
-        false,
-        &device,
-    )
-    .err()
-    .expect("guides of two kinds were accepted")
-    .to_string();
+    let e = small_guided_trainer(d.path(), "train-cheap", "val", 1, "mixed")
+        .err()
+        .expect("guides of two kinds were accepted")
+        .to_string();
     assert!(e.contains("--guide-prefilter") && e.contains("val"), "{e}");
 }
 

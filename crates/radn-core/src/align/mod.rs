@@ -68,6 +68,9 @@ pub struct AlignedFrame {
     pub aovs: Vec<Plane>,
     /// The frame's guide ([`Frame::guide`]), warped like the colour.
     pub guide: Option<Plane>,
+    /// The renderer's variance of the beauty ([`Frame::variance`]): the centre frame's only
+    /// (what the blends back towards the centre's input compare with; side frames: `None`).
+    pub variance: Option<Plane>,
     /// Confidence in [0, 1]: 1 for the centre frame; 0 off-screen, on disocclusion and for
     /// frames beyond the ends of the sequence.
     pub confidence: Plane,
@@ -135,6 +138,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
         depth: centre.depth.clone(),
         aovs: centre.aovs.iter().map(|a| a.plane.clone()).collect(),
         guide: centre.guide.clone(),
+        variance: centre.variance.clone(),
         confidence: Plane::filled(w, h, 1, 1.0),
         flow: Plane::zeros(w, h, 2),
     });
@@ -247,6 +251,7 @@ pub fn align_bands(window: &[Option<FrameBand>], params: &AlignParams) -> Aligne
                 depth: warped_guides.depth,
                 aovs,
                 guide: take(5),
+                variance: None,
                 confidence: conf,
                 flow: flow.clone(),
             };

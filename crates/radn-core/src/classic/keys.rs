@@ -2,6 +2,7 @@
 //! needs no flag per setting (`radn denoise --tune help` lists them with their defaults).
 
 use super::pipeline::ClassicDenoiser;
+use crate::post::wiener::VarianceBlend;
 use crate::setting::Positive;
 
 /// The keys the classic denoiser takes, each with what its value means.
@@ -37,6 +38,10 @@ pub const KEYS: &[(&str, &str)] = &[
         "box radius of that comparison",
     ),
     ("classic.demodulate", "filter beauty / albedo: on|off"),
+    (
+        "classic.variance-blend",
+        "box radius of the last blend where frames carry the renderer's variance|off",
+    ),
 ];
 
 impl ClassicDenoiser {
@@ -78,6 +83,12 @@ impl ClassicDenoiser {
                 }
             }
             "classic.demodulate" => p.demodulate = on_off(value)?,
+            "classic.variance-blend" => {
+                p.variance_blend = match value {
+                    "off" => None,
+                    v => Some(VarianceBlend { radius: whole(v)? }),
+                }
+            }
             _ => {
                 return Err(format!(
                     "--tune {key}: no such key (radn denoise --tune help lists them)"
@@ -103,6 +114,9 @@ impl ClassicDenoiser {
             "classic.guided-noise-scale" => blend.noise_scale.to_string(),
             "classic.guided-blend-radius" => blend.radius.to_string(),
             "classic.demodulate" => on(p.demodulate),
+            "classic.variance-blend" => p
+                .variance_blend
+                .map_or("off".into(), |v| v.radius.to_string()),
             _ => return None,
         })
     }

@@ -15,7 +15,9 @@ use crate::align::{align_window, AlignParams};
 use crate::image::ops::box_mean;
 use crate::image::plane::Plane;
 use crate::io::frame::Frame;
-use crate::post::wiener::{blend, blend_weight, local_variance, BlendParams};
+use crate::post::wiener::{
+    blend, blend_weight, local_variance, variance_blend_weight, BlendParams, VarianceBlend,
+};
 
 /// All options of the classic denoiser.
 #[derive(Clone, Copy, Debug)]
@@ -33,6 +35,10 @@ pub struct ClassicParams {
     pub guided_blend: Option<BlendParams>,
     /// Filter colour divided by albedo (texture detail is then kept by remodulation).
     pub demodulate: bool,
+    /// The last stage, where the centre frame carries the renderer's per-pixel variance: the
+    /// result blended back towards the centre's input where it changed it by more than that
+    /// noise explains (None: the result as it is).
+    pub variance_blend: Option<VarianceBlend>,
 }
 
 impl Default for ClassicParams {
@@ -44,6 +50,7 @@ impl Default for ClassicParams {
             guided: Some(GuidedParams::default()),
             guided_blend: Some(BlendParams::default()),
             demodulate: true,
+            variance_blend: Some(VarianceBlend::default()),
         }
     }
 }
@@ -240,7 +247,21 @@ pub fn denoise_window(window: &[Option<&Frame>], p: &ClassicParams) -> ClassicRe
             }
         })
         .collect();
-    let alpha = t_alpha.map(|_| it.next().expect("alpha is the last signal"));
+    let mut alpha = t_alpha.map(|_| it.next().expect("alpha is the last signal"));
+    let (mut color, mut aovs) = (color, aovs);
+    if let (Some(vb), Some(var)) = (&p.variance_blend, &centre.variance) {
+        // the Wiener gain against the renderer's noise, one weight for every signal
+        let weight = variance_blend_weight(&centre.color, &color, var, vb);
+        color = blend(&centre.color, &color, &weight);
+        aovs = aovs
+            .iter()
+            .zip(&centre.aovs)
+            .map(|(a, c)| blend(c, a, &weight))
+            .collect();
+        if let (Some(a), Some(c)) = (alpha.as_mut(), centre.alpha.as_ref()) {
+            *a = blend(c, a, &weight);
+        }
+    }
     debug_assert!(color.width() == w && color.height() == h);
     ClassicResult {
         color,

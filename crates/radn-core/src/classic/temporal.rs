@@ -169,6 +169,7 @@ mod tests {
                 depth: None,
                 aovs: vec![],
                 guide: None,
+                variance: None,
                 confidence: Plane::filled(1, 1, 1, conf[k]),
                 flow: Plane::zeros(1, 1, 2),
             })

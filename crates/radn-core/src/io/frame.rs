@@ -40,6 +40,8 @@ pub struct Frame {
     pub motion_prev: Option<Plane>,
     /// Displacement in pixels from each pixel to where its surface point will be one frame later.
     pub motion_next: Option<Plane>,
+    /// The variance of each pixel's mean beauty (RGB), where the file has the renderer's.
+    pub variance: Option<Plane>,
     /// Extra buffers requested by the caller.
     pub aovs: Vec<Aov>,
     /// A per-frame spatial estimate of the beauty (RGB) that steers a guided network: the
@@ -105,6 +107,7 @@ impl Frame {
             depth: cut(&self.depth),
             motion_prev: cut(&self.motion_prev),
             motion_next: cut(&self.motion_next),
+            variance: cut(&self.variance),
             aovs: self
                 .aovs
                 .iter()
@@ -135,6 +138,7 @@ impl Frame {
             depth: None,
             motion_prev: None,
             motion_next: None,
+            variance: None,
             aovs: Vec::new(),
             guide: None,
             features: None,
@@ -313,6 +317,14 @@ impl FrameReader {
             &mut repaired,
         )?
         .map(|p| p.0);
+        let variance = optional(
+            &self.mapping.variance,
+            "variance",
+            false,
+            None,
+            &mut repaired,
+        )?
+        .map(|p| p.0);
         let motion_prev = self.motion(
             file,
             &names,
@@ -387,6 +399,7 @@ impl FrameReader {
             depth,
             motion_prev,
             motion_next,
+            variance,
             aovs,
             guide,
             features: None,

@@ -74,6 +74,10 @@ pub struct ChannelMapping {
     pub motion_prev: Option<MotionSpec>,
     /// Motion towards the next frame.
     pub motion_next: Option<MotionSpec>,
+    /// The variance of each pixel's mean beauty (RGB), where the renderer writes one: the noise
+    /// the input blend and the classic denoiser's last blend compare their changes with.
+    #[serde(default)]
+    pub variance: Option<PlaneSpec>,
     /// The renderer's own denoised beauty (RGB), where a file holds it beside the noisy one
     /// (Cycles with denoising data stored: `Combined` is denoised, `Noisy Image` noisy). Only
     /// a layer other than the one [`ChannelMapping::color`] resolved to counts: the noisy
@@ -155,6 +159,9 @@ impl ChannelMapping {
         }
         if let Some(s) = &self.denoised {
             n(s, 3, "denoised")?;
+        }
+        if let Some(s) = &self.variance {
+            n(s, 3, "variance")?;
         }
         for (m, what) in [
             (&self.motion_prev, "motion_prev"),
@@ -479,5 +486,17 @@ mod tests {
         .unwrap();
         let e = ChannelMapping::from_file(&p).unwrap_err().to_string();
         assert!(e.contains("m.toml") && e.contains("color needs 3"), "{e}");
+        // a variance is one per colour channel
+        std::fs::write(
+            &p,
+            "name = \"x\"\n[color]\nlayer=[\"\"]\nchannels=[\"R\",\"G\",\"B\"]\n\
+             [variance]\nlayer=[\"variance\"]\nchannels=[\"Y\"]\n",
+        )
+        .unwrap();
+        let e = ChannelMapping::from_file(&p).unwrap_err().to_string();
+        assert!(
+            e.contains("m.toml") && e.contains("variance needs 3"),
+            "{e}"
+        );
     }
 }

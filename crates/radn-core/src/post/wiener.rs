@@ -162,6 +162,76 @@ pub fn blend_weight(
     })
 }
 
+/// Added to the squared local brightness that [`variance_blend_weight`] divides by (a floor for
+/// black pixels: brightness 0.03).
+pub const RELATIVE_FLOOR: f32 = 1e-3;
+
+/// Options of the blend against the renderer's own per-pixel variance.
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct VarianceBlend {
+    /// Radius of the box the change and the variance are averaged over.
+    pub radius: usize,
+}
+
+impl Default for VarianceBlend {
+    /// Chosen on the Mitsuba validation split: `docs/research/transfer.md`.
+    fn default() -> Self {
+        Self { radius: 4 }
+    }
+}
+
+/// The per-pixel weight (1 channel, in 0..=1) of `smoothed` over `input` where the renderer
+/// wrote `variance`, the per-pixel, per-channel variance of `input`'s mean: the Wiener gain
+/// `v / (v + b²)`, `b² = max(0, d² − v)`, with the squared change `d²` and `v` each divided by
+/// the squared local brightness of `smoothed` before the box averages them, so that an error
+/// counts relative to the brightness it sits in (as on a display) and dark detail is not
+/// outvoted by bright pixels. The variance is the renderer's, so edges do not read as noise.
+pub fn variance_blend_weight(
+    input: &Plane,
+    smoothed: &Plane,
+    variance: &Plane,
+    p: &VarianceBlend,
+) -> Plane {
+    let (w, h) = (input.width(), input.height());
+    let n = w * h;
+    let c = input.channels().min(3);
+    let vc = variance.channels().min(3);
+    let bright = box_mean(&smoothed.select_channels(0, c), 1);
+    let mut terms = Plane::zeros(w, h, 2);
+    let (change, var) = terms.data_mut().split_at_mut(n);
+    change
+        .par_iter_mut()
+        .zip(var.par_iter_mut())
+        .enumerate()
+        .for_each(|(i, (d, v))| {
+            let l = (0..c).map(|k| bright.data()[k * n + i]).sum::<f32>() / c as f32;
+            let scale = 1.0 / (l.max(0.0).powi(2) + RELATIVE_FLOOR);
+            let dd = (0..c)
+                .map(|k| (smoothed.data()[k * n + i] - input.data()[k * n + i]).powi(2))
+                .sum::<f32>()
+                / c as f32;
+            let s = (0..vc).map(|k| variance.data()[k * n + i]).sum::<f32>() / vc as f32;
+            *d = if dd.is_finite() { dd * scale } else { 0.0 };
+            *v = if s.is_finite() {
+                s.max(0.0) * scale
+            } else {
+                0.0
+            };
+        });
+    let terms = box_mean(&terms, p.radius);
+    Plane::from_fn(w, h, 1, |x, y, _| {
+        let i = y * w + x;
+        let (d, v) = (terms.data()[i], terms.data()[n + i]);
+        let bias = (d - v).max(0.0);
+        if v + bias <= 0.0 {
+            1.0
+        } else {
+            v / (v + bias)
+        }
+    })
+}
+
 /// `input + weight · (smoothed − input)` per pixel, for every channel.
 pub fn blend(input: &Plane, smoothed: &Plane, weight: &Plane) -> Plane {
     let n = input.pixels();
@@ -224,6 +294,67 @@ mod tests {
         assert!(mse(&out, &clean) < 0.3 * mse(&input, &clean));
     }
 
+    /// Mean squared difference over columns `cols` only.
+    fn mse_cols(a: &Plane, b: &Plane, cols: Range<usize>) -> f32 {
+        let (w, h, c) = (a.width(), a.height(), a.channels());
+        let mut s = 0.0;
+        for k in 0..c {
+            for y in 0..h {
+                for x in cols.clone() {
+                    s += (a.get(x, y, k) - b.get(x, y, k)).powi(2);
+                }
+            }
+        }
+        debug_assert!(cols.end <= w);
+        s / (c * h * cols.len()) as f32
+    }
+
+    #[test]
+    fn the_variance_blend_keeps_dark_detail_beside_a_bright_noisy_area_and_smooths_the_noise() {
+        // left: bright and noisy (2.0, noise variance 0.03); right: dark one-pixel stripes
+        // (0.02 / 0.04) nearly free of noise; the smoothing flattens both halves
+        let (w, h) = (48, 32);
+        let bright = |x: usize| x < w / 2;
+        let clean = Plane::from_fn(w, h, 3, |x, _, _| match (bright(x), x % 2) {
+            (true, _) => 2.0,
+            (false, 0) => 0.02,
+            (false, _) => 0.04,
+        });
+        let amp = |x: usize| if bright(x) { 0.6 } else { 0.001 };
+        let input = Plane::from_fn(w, h, 3, |x, y, c| {
+            clean.get(x, y, c) + amp(x) * noise(x, y, c)
+        });
+        let var = Plane::from_fn(w, h, 3, |x, _, _| amp(x) * amp(x) / 12.0);
+        let smoothed = Plane::from_fn(w, h, 3, |x, _, _| if bright(x) { 2.0 } else { 0.03 });
+        let p = VarianceBlend { radius: 4 };
+        let out = blend(
+            &input,
+            &smoothed,
+            &variance_blend_weight(&input, &smoothed, &var, &p),
+        );
+        let (dark, lit) = (w / 2 + 1..w, 0..w / 2 - 5);
+        // the dark stripes are kept, up to the border with the bright half: of the error the
+        // smoothing alone makes there, less than 1% is left
+        let lost = mse_cols(&smoothed, &clean, dark.clone());
+        let kept = mse_cols(&out, &clean, dark.clone());
+        assert!(kept < 0.01 * lost, "{kept} vs {lost}");
+        // the bright half's noise is smoothed away
+        assert!(mse_cols(&out, &clean, lit.clone()) < 0.3 * mse_cols(&input, &clean, lit));
+        // the same box with errors counted in absolute terms lets the bright noise outvote the
+        // dark stripes near the border (why the variance blend counts them relative to brightness)
+        let linear = BlendParams {
+            radius: 4,
+            noise_scale: 1.0,
+        };
+        let flat = blend(
+            &input,
+            &smoothed,
+            &blend_weight(&input, &smoothed, &var, &linear),
+        );
+        let flat = mse_cols(&flat, &clean, dark);
+        assert!(flat > 20.0 * kept, "{flat} vs {kept}");
+    }
+
     #[test]
     fn the_blend_is_one_linear_operator_for_every_signal() {
         let (_, input, smoothed, var) = case(0.3);
@@ -259,6 +390,7 @@ mod tests {
                 depth: None,
                 aovs: vec![],
                 guide: None,
+                variance: None,
                 confidence: Plane::filled(w, h, 1, conf[k]),
                 flow: Plane::zeros(w, h, 2),
             })

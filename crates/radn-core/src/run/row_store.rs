@@ -176,7 +176,7 @@ impl FrameStore {
         let mut next = || stored.next().expect("one plane per plane of the frame");
         let t = &self.template;
         let mut take = |p: &Option<Plane>| p.as_ref().map(|_| next());
-        let (alpha, albedo, normal, depth, motion_prev, motion_next, guide) = (
+        let (alpha, albedo, normal, depth, motion_prev, motion_next, guide, variance) = (
             take(&t.alpha),
             take(&t.albedo),
             take(&t.normal),
@@ -184,6 +184,7 @@ impl FrameStore {
             take(&t.motion_prev),
             take(&t.motion_next),
             take(&t.guide),
+            take(&t.variance),
         );
         let mut frame = t.clone();
         frame.alpha = alpha;
@@ -193,6 +194,7 @@ impl FrameStore {
         frame.motion_prev = motion_prev;
         frame.motion_next = motion_next;
         frame.guide = guide;
+        frame.variance = variance;
         frame.color = next();
         frame.aovs = t
             .aovs
@@ -208,7 +210,7 @@ impl FrameStore {
 }
 
 /// The planes of `frame` a [`FrameStore`] keeps, in its order: alpha, albedo, normal, depth,
-/// the motion fields and the guide (those it has), the beauty, then the AOVs.
+/// the motion fields, the guide and the variance (those it has), the beauty, then the AOVs.
 fn planes(frame: &Frame) -> Vec<&Plane> {
     let optional = [
         &frame.alpha,
@@ -218,6 +220,7 @@ fn planes(frame: &Frame) -> Vec<&Plane> {
         &frame.motion_prev,
         &frame.motion_next,
         &frame.guide,
+        &frame.variance,
     ];
     let mut out: Vec<&Plane> = optional.iter().filter_map(|p| p.as_ref()).collect();
     out.push(&frame.color);

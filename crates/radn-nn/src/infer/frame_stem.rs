@@ -45,6 +45,7 @@ impl NetworkDenoiser {
                 depth: frame.depth.clone(),
                 aovs: Vec::new(),
                 guide: frame.guide.clone(),
+                variance: frame.variance.clone(),
                 confidence: Plane::filled(w, h, 1, 1.0),
                 flow: Plane::zeros(w, h, 2),
             }],

@@ -286,6 +286,7 @@ mod tests {
             depth: None,
             aovs: vec![],
             guide: Some(guide),
+            variance: None,
             confidence,
             flow: Plane::zeros(w, h, 2),
         }

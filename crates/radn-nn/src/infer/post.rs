@@ -12,7 +12,6 @@
 use std::ops::Range;
 
 use radn_core::align::AlignedWindow;
-use radn_core::post::wiener::BlendParams;
 use radn_core::run::denoiser::Denoised;
 use radn_core::Plane;
 
@@ -29,8 +28,8 @@ use super::{guide_mix, input_blend, NetworkDenoiser};
 /// noise level.
 #[derive(Clone, Debug)]
 pub struct PostChain {
-    /// The input blend's parameters; `None` where the frame keeps the kernels' result.
-    pub input_blend: Option<BlendParams>,
+    /// The input blend; `None` where the frame keeps the kernels' result.
+    pub input_blend: Option<input_blend::BlendStage>,
     /// The guide mix; `None` for a model that reads no guide.
     pub guide_mix: Option<guide_mix::MixStage>,
 }
@@ -38,7 +37,7 @@ pub struct PostChain {
 impl PostChain {
     /// Rows beyond a result's own that the chain reads from the kernels' result.
     pub fn margin(&self) -> usize {
-        self.input_blend.map_or(0, |p| p.radius)
+        self.input_blend.map_or(0, |p| p.radius())
     }
 
     /// The chain's result over rows `rows` of `win`, from the kernels' result `kernels` over
@@ -68,14 +67,16 @@ impl PostChain {
 }
 
 impl NetworkDenoiser {
-    /// The stages after the kernels for a frame of noise level `level`.
-    pub fn post_chain(&self, level: Option<f32>) -> PostChain {
+    /// The stages after the kernels for a frame of noise level `level` (`renderer_variance`:
+    /// whether the frame carries the renderer's per-pixel variance, which a model with an
+    /// input blend then blends against on every frame).
+    pub fn post_chain(&self, level: Option<f32>, renderer_variance: bool) -> PostChain {
         let mix = &self.recipe.guide_mix;
         PostChain {
             input_blend: self
                 .recipe
                 .input_blend
-                .and_then(|b| b.params(level, &self.recipe.schedule)),
+                .and_then(|b| b.stage(level, &self.recipe.schedule, renderer_variance)),
             guide_mix: self
                 .denoiser
                 .config
@@ -100,7 +101,7 @@ impl NetworkDenoiser {
         scales: FeatureScales,
         rows: Range<usize>,
     ) -> Denoised {
-        let chain = self.post_chain(scales.noise_level);
+        let chain = self.post_chain(scales.noise_level, win.centre().variance.is_some());
         let h = win.centre().color.height();
         let m = chain.margin();
         let read = rows.start.saturating_sub(m)..(rows.end + m).min(h);

@@ -33,6 +33,7 @@ fn window(w: usize, h: usize) -> AlignedWindow {
                 depth: Some(Plane::filled(w, h, 1, 3.0)),
                 aovs: vec![plane(3, k + 4)],
                 guide: None,
+                variance: None,
                 confidence: Plane::filled(w, h, 1, 0.9),
                 flow: Plane::zeros(w, h, 2),
             })
@@ -287,6 +288,7 @@ fn the_input_blend_keeps_a_noise_free_input_and_follows_a_noisy_one() {
     n.recipe.input_blend = Some(InputBlend {
         radius: 1,
         noise_scale: Some(2.0),
+        variance_radius: 4,
     });
     // five identical frames: no noise, so nothing the kernels change is explained by it
     let mut still = window(24, 20);

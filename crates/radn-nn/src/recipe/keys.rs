@@ -7,6 +7,7 @@ use radn_core::setting::{Positive, Setting};
 use super::{Recipe, StabilizeRecipe};
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};
 use crate::infer::input_blend::InputBlend;
+use radn_core::post::wiener::VarianceBlend;
 
 /// The keys a recipe takes, each with what its value means.
 pub const KEYS: &[(&str, &str)] = &[
@@ -56,6 +57,10 @@ pub const KEYS: &[(&str, &str)] = &[
         "auto: noise scale per frame from the schedule|off|fixed scale K",
     ),
     ("input-blend.radius", "box radius of the input blend"),
+    (
+        "input-blend.variance-radius",
+        "its box radius where frames carry the renderer's variance|off",
+    ),
     (
         "mix.weight",
         "guide's weight in the guide mix, 0 to 1 (guided models)",
@@ -136,7 +141,17 @@ impl Recipe {
                     s => Some(InputBlend {
                         radius,
                         noise_scale: s.resolve(None).map(|p| p.0),
+                        variance_radius: self
+                            .input_blend
+                            .map_or(VarianceBlend::default().radius, |b| b.variance_radius),
                     }),
+                }
+            }
+            "input-blend.variance-radius" => {
+                let r = if value == "off" { 0 } else { whole(value)? };
+                match self.input_blend.as_mut() {
+                    Some(b) => b.variance_radius = r,
+                    None => return Err(bad("the input blend is off (set input-blend first)")),
                 }
             }
             "input-blend.radius" => {
@@ -229,6 +244,13 @@ impl Recipe {
             "input-blend.radius" => self
                 .input_blend
                 .map_or("-".into(), |b| b.radius.to_string()),
+            "input-blend.variance-radius" => self.input_blend.map_or("-".into(), |b| {
+                if b.variance_radius == 0 {
+                    "off".into()
+                } else {
+                    b.variance_radius.to_string()
+                }
+            }),
             "mix.weight" => self.guide_mix.weight.to_string(),
             "mix.from" => match self.guide_mix.from {
                 MixGuide::FollowLevel => "auto".into(),

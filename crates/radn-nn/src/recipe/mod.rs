@@ -151,6 +151,7 @@ impl Recipe {
             input_blend: Some(InputBlend {
                 radius: tuned::INPUT_BLEND_RADIUS,
                 noise_scale: None,
+                variance_radius: radn_core::post::wiener::VarianceBlend::default().radius,
             }),
             guide_mix: GuideMixRecipe {
                 weight: if guided { tuned::GUIDE_MIX } else { 0.0 },
