@@ -175,7 +175,7 @@ pub struct VarianceBlend {
 }
 
 impl Default for VarianceBlend {
-    /// Chosen on the Mitsuba validation split: `docs/research/transfer.md`.
+    /// The classic denoiser's, chosen on the Mitsuba validation split (`docs/research/transfer.md`).
     fn default() -> Self {
         Self { radius: 4 }
     }

@@ -41,7 +41,7 @@ pub struct InputBlend {
 }
 
 fn default_variance_radius() -> usize {
-    VarianceBlend::default().radius
+    crate::recipe::tuned::INPUT_BLEND_VARIANCE_RADIUS
 }
 
 fn is_default_variance_radius(r: &usize) -> bool {

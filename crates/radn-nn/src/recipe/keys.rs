@@ -4,10 +4,10 @@
 use radn_core::align::warp::Resampling;
 use radn_core::setting::{Positive, Setting};
 
+use super::tuned;
 use super::{Recipe, StabilizeRecipe};
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};
 use crate::infer::input_blend::InputBlend;
-use radn_core::post::wiener::VarianceBlend;
 
 /// The keys a recipe takes, each with what its value means.
 pub const KEYS: &[(&str, &str)] = &[
@@ -143,7 +143,7 @@ impl Recipe {
                         noise_scale: s.resolve(None).map(|p| p.0),
                         variance_radius: self
                             .input_blend
-                            .map_or(VarianceBlend::default().radius, |b| b.variance_radius),
+                            .map_or(tuned::INPUT_BLEND_VARIANCE_RADIUS, |b| b.variance_radius),
                     }),
                 }
             }

@@ -102,7 +102,7 @@ impl StabilizeRecipe {
 
 /// The tuned values: the one place they live. Chosen on validation sets
 /// (`docs/research/guided.md`, `docs/research/detail.md`).
-mod tuned {
+pub(crate) mod tuned {
     use super::*;
 
     pub const SCHEDULE: NoiseSchedule = NoiseSchedule {
@@ -112,6 +112,8 @@ mod tuned {
         max_scale: 8.0,
     };
     pub const INPUT_BLEND_RADIUS: usize = 1;
+    /// The input blend's box radius on frames that carry the renderer's variance.
+    pub const INPUT_BLEND_VARIANCE_RADIUS: usize = 2;
     pub const GUIDE_CONFIDENCE: f32 = 0.6;
     pub const COLOR_CONFIDENCE: f32 = 0.5;
     pub const LOOSEN_SAMPLED: f32 = 4.0;
@@ -151,7 +153,7 @@ impl Recipe {
             input_blend: Some(InputBlend {
                 radius: tuned::INPUT_BLEND_RADIUS,
                 noise_scale: None,
-                variance_radius: radn_core::post::wiener::VarianceBlend::default().radius,
+                variance_radius: tuned::INPUT_BLEND_VARIANCE_RADIUS,
             }),
             guide_mix: GuideMixRecipe {
                 weight: if guided { tuned::GUIDE_MIX } else { 0.0 },
