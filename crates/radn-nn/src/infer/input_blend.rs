@@ -31,21 +31,11 @@ pub struct InputBlend {
     /// The same noise scale for every frame; `None`: per frame, from the noise schedule.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub noise_scale: Option<f32>,
-    /// Box radius of the blend on frames that carry the renderer's variance; 0: those frames
-    /// get the estimated blend too.
-    #[serde(
-        default = "default_variance_radius",
-        skip_serializing_if = "is_default_variance_radius"
-    )]
-    pub variance_radius: usize,
-}
-
-fn default_variance_radius() -> usize {
-    crate::recipe::tuned::INPUT_BLEND_VARIANCE_RADIUS
-}
-
-fn is_default_variance_radius(r: &usize) -> bool {
-    *r == default_variance_radius()
+    /// Box radius of the blend on frames that carry the renderer's variance; `Some(0)` or
+    /// `None`: those frames get the estimated blend too. A recipe stored without it gets the
+    /// tuned radius when read ([`crate::recipe::Recipe::from_toml`]).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variance_radius: Option<usize>,
 }
 
 impl InputBlend {
@@ -57,10 +47,11 @@ impl InputBlend {
         schedule: &NoiseSchedule,
         renderer_variance: bool,
     ) -> Option<BlendStage> {
-        if renderer_variance && self.variance_radius > 0 {
-            return Some(BlendStage::RendererVariance(VarianceBlend {
-                radius: self.variance_radius,
-            }));
+        match self.variance_radius {
+            Some(radius) if renderer_variance && radius > 0 => {
+                return Some(BlendStage::RendererVariance(VarianceBlend { radius }))
+            }
+            _ => {}
         }
         self.params(level, schedule).map(BlendStage::Estimated)
     }
@@ -138,7 +129,7 @@ mod tests {
         let b = InputBlend {
             radius: 1,
             noise_scale: None,
-            variance_radius: 4,
+            variance_radius: Some(4),
         };
         assert_eq!(b.params(Some(1e-5), &s).unwrap().noise_scale, s.min_scale);
         assert!(b.params(Some(10.0 * s.noisiest_level()), &s).is_none());
@@ -151,7 +142,7 @@ mod tests {
             }
         }
         let off = InputBlend {
-            variance_radius: 0,
+            variance_radius: Some(0),
             ..b
         };
         assert!(off.stage(None, &s, true).is_none());
@@ -166,7 +157,7 @@ mod tests {
         let b = InputBlend {
             radius: 2,
             noise_scale: Some(4.0),
-            variance_radius: 4,
+            variance_radius: Some(4),
         };
         for level in [None, Some(1e-5), Some(1.0)] {
             let p = b.params(level, &NoiseSchedule::example()).unwrap();

@@ -141,16 +141,19 @@ impl Recipe {
                     s => Some(InputBlend {
                         radius,
                         noise_scale: s.resolve(None).map(|p| p.0),
-                        variance_radius: self
-                            .input_blend
-                            .map_or(tuned::INPUT_BLEND_VARIANCE_RADIUS, |b| b.variance_radius),
+                        variance_radius: Some(
+                            self.input_blend
+                                .map_or(tuned::INPUT_BLEND_VARIANCE_RADIUS, |b| {
+                                    b.variance_radius.unwrap_or(0)
+                                }),
+                        ),
                     }),
                 }
             }
             "input-blend.variance-radius" => {
                 let r = if value == "off" { 0 } else { whole(value)? };
                 match self.input_blend.as_mut() {
-                    Some(b) => b.variance_radius = r,
+                    Some(b) => b.variance_radius = Some(r),
                     None => return Err(bad("the input blend is off (set input-blend first)")),
                 }
             }
@@ -244,13 +247,13 @@ impl Recipe {
             "input-blend.radius" => self
                 .input_blend
                 .map_or("-".into(), |b| b.radius.to_string()),
-            "input-blend.variance-radius" => self.input_blend.map_or("-".into(), |b| {
-                if b.variance_radius == 0 {
-                    "off".into()
-                } else {
-                    b.variance_radius.to_string()
-                }
-            }),
+            "input-blend.variance-radius" => {
+                self.input_blend
+                    .map_or("-".into(), |b| match b.variance_radius.unwrap_or(0) {
+                        0 => "off".into(),
+                        r => r.to_string(),
+                    })
+            }
             "mix.weight" => self.guide_mix.weight.to_string(),
             "mix.from" => match self.guide_mix.from {
                 MixGuide::FollowLevel => "auto".into(),

@@ -102,7 +102,7 @@ impl StabilizeRecipe {
 
 /// The tuned values: the one place they live. Chosen on validation sets
 /// (`docs/research/guided.md`, `docs/research/detail.md`).
-pub(crate) mod tuned {
+mod tuned {
     use super::*;
 
     pub const SCHEDULE: NoiseSchedule = NoiseSchedule {
@@ -153,7 +153,7 @@ impl Recipe {
             input_blend: Some(InputBlend {
                 radius: tuned::INPUT_BLEND_RADIUS,
                 noise_scale: None,
-                variance_radius: tuned::INPUT_BLEND_VARIANCE_RADIUS,
+                variance_radius: Some(tuned::INPUT_BLEND_VARIANCE_RADIUS),
             }),
             guide_mix: GuideMixRecipe {
                 weight: if guided { tuned::GUIDE_MIX } else { 0.0 },
@@ -190,9 +190,15 @@ impl Recipe {
         toml::to_string(self).expect("a recipe serialises")
     }
 
-    /// A recipe from TOML.
+    /// A recipe from TOML; an input blend stored before it had a renderer-variance radius gets
+    /// the tuned one.
     pub fn from_toml(text: &str) -> Result<Self, String> {
-        toml::from_str(text).map_err(|e| e.to_string())
+        let mut recipe: Self = toml::from_str(text).map_err(|e| e.to_string())?;
+        if let Some(b) = recipe.input_blend.as_mut() {
+            b.variance_radius
+                .get_or_insert(tuned::INPUT_BLEND_VARIANCE_RADIUS);
+        }
+        Ok(recipe)
     }
 }
 
