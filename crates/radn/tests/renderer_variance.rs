@@ -12,6 +12,8 @@ use radn_core::io::exr_file::{ExrFile, SampleKind};
 
 const W: usize = 64;
 const H: usize = 48;
+/// The height of the sequence that is denoised in bands.
+const TALL: usize = 320;
 const CENTRE: usize = 3;
 
 /// Shading stripes that move one pixel per frame with no motion vector to say so (a fence's
@@ -43,8 +45,13 @@ fn gauss(x: usize, y: usize, c: usize, frame: usize) -> f32 {
 /// Writes frames 1–5 of the sequence with noise of standard deviation `sigma`, in the generic
 /// layout, with the renderer's variance (`sigma²`) where `with_variance`.
 fn write_sequence(dir: &Path, sigma: f32, with_variance: bool) {
+    write_frames(dir, H, sigma, with_variance);
+}
+
+/// [`write_sequence`] `h` rows tall.
+fn write_frames(dir: &Path, h: usize, sigma: f32, with_variance: bool) {
     std::fs::create_dir_all(dir).unwrap();
-    let n = W * H;
+    let n = W * h;
     let filled = |v: f32| vec![v; n];
     for f in 1..=5 {
         let mut ch: Vec<(String, Vec<f32>)> = Vec::new();
@@ -70,7 +77,7 @@ fn write_sequence(dir: &Path, sigma: f32, with_variance: bool) {
             ch.push((name.to_string(), filled(v)));
         }
         let p = dir.join(format!("f.{f:04}.exr"));
-        ExrFile::from_channels(&p, W, H, ch, SampleKind::F32)
+        ExrFile::from_channels(&p, W, h, ch, SampleKind::F32)
             .write_atomic(&p)
             .unwrap();
     }
@@ -136,5 +143,51 @@ fn with_the_renderers_variance_the_fallbacks_keep_a_clean_renders_detail_and_sti
             with <= 1.05 * without,
             "{method:?}: {with} vs {without} without"
         );
+    }
+}
+
+#[test]
+fn with_the_renderers_variance_bands_still_equal_whole_frames() {
+    // the variance blend's boxes read rows beyond each band: with a radius beyond the network's
+    // own reach (its receptive field), the band halo has to grow for the blend
+    let d = tempfile::tempdir().unwrap();
+    let input = d.path().join("in");
+    write_frames(&input, TALL, 0.05, true);
+    let run = |tile: &str| {
+        let out = d.path().join(format!("t{tile}"));
+        let pattern = format!("{}/f.####.exr", out.display());
+        radn_ok(&[
+            "--progress",
+            "off",
+            "denoise",
+            "-i",
+            input.to_str().unwrap(),
+            "-o",
+            &pattern,
+            "--guide",
+            "none",
+            "--tune",
+            "input-blend.variance-radius=150",
+            "--tile",
+            tile,
+            "--bands",
+            "always",
+        ]);
+        out
+    };
+    let (whole, banded) = (run("0"), run("64"));
+    for f in 1..=5 {
+        let read = |dir: &Path| ExrFile::read(dir.join(format!("f.{f:04}.exr"))).unwrap();
+        let (a, b) = (read(&whole), read(&banded));
+        for c in ["R", "G", "B"] {
+            let (x, y) = (a.channel_f32(c).unwrap(), b.channel_f32(c).unwrap());
+            for (i, (u, v)) in x.iter().zip(&y).enumerate() {
+                assert!(
+                    (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                    "frame {f} {c} row {}: whole {u}, banded {v}",
+                    i / W
+                );
+            }
+        }
     }
 }

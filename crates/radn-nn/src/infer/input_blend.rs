@@ -80,11 +80,12 @@ pub enum BlendStage {
 }
 
 impl BlendStage {
-    /// Rows beyond a result's own that the stage reads.
+    /// Rows beyond a result's own that the stage reads of the network's result (the variance
+    /// blend's box, and the brightness box inside it).
     pub fn radius(&self) -> usize {
         match self {
             Self::Estimated(p) => p.radius,
-            Self::RendererVariance(v) => v.radius,
+            Self::RendererVariance(v) => v.radius + 1,
         }
     }
 }

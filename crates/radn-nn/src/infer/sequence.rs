@@ -106,10 +106,12 @@ impl BandDenoiser for NetworkDenoiser {
         } else {
             self.denoiser.receptive_radius()
         };
-        let refine = self
-            .recipe
-            .input_blend
-            .map_or(0, |p| p.radius.div_ceil(g) * g + LOCAL_VARIANCE_RADIUS);
+        let refine = self.recipe.input_blend.map_or(0, |p| {
+            let estimated = p.radius.div_ceil(g) * g + LOCAL_VARIANCE_RADIUS;
+            // on frames with the renderer's variance: its box and the brightness box inside it
+            let variance = p.variance_radius.map_or(0, |r| r + 1);
+            estimated.max(variance)
+        });
         (network.unwrap_or(0) + refine + ALIGNMENT_EDGE_ROWS).div_ceil(g) * g
     }
 
