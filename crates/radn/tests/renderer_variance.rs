@@ -98,6 +98,21 @@ fn error(dir: &Path) -> f32 {
     sum / (3 * W * H) as f32
 }
 
+/// Runs `radn denoise` on the sequence in `input`, writing into `out`, with `extra` arguments.
+fn denoise(input: &Path, out: &Path, extra: &[&str]) {
+    let pattern = format!("{}/f.####.exr", out.display());
+    let mut args = vec![
+        "--progress",
+        "off",
+        "denoise",
+        "-i",
+        input.to_str().unwrap(),
+    ];
+    args.extend(["-o", &pattern]);
+    args.extend_from_slice(extra);
+    radn_ok(&args);
+}
+
 /// The input's error and each method's, without and with the variance channels.
 fn errors(root: &Path, sigma: f32, method: &[&str]) -> (f32, f32, f32) {
     let mut out = [0.0; 2];
@@ -105,18 +120,7 @@ fn errors(root: &Path, sigma: f32, method: &[&str]) -> (f32, f32, f32) {
         let input = root.join(format!("in-{with}"));
         write_sequence(&input, sigma, with);
         let result = root.join(format!("out-{with}"));
-        let mut args = vec![
-            "--progress",
-            "off",
-            "denoise",
-            "-i",
-            input.to_str().unwrap(),
-            "-o",
-        ];
-        let pattern = format!("{}/f.####.exr", result.display());
-        args.push(&pattern);
-        args.extend_from_slice(method);
-        radn_ok(&args);
+        denoise(&input, &result, method);
         out[k] = error(&result);
     }
     (error(&root.join("in-false")), out[0], out[1])
@@ -155,24 +159,11 @@ fn with_the_renderers_variance_bands_still_equal_whole_frames() {
     write_frames(&input, TALL, 0.05, true);
     let run = |tile: &str| {
         let out = d.path().join(format!("t{tile}"));
-        let pattern = format!("{}/f.####.exr", out.display());
-        radn_ok(&[
-            "--progress",
-            "off",
-            "denoise",
-            "-i",
-            input.to_str().unwrap(),
-            "-o",
-            &pattern,
-            "--guide",
-            "none",
-            "--tune",
-            "input-blend.variance-radius=150",
-            "--tile",
-            tile,
-            "--bands",
-            "always",
-        ]);
+        let radius = "input-blend.variance-radius=150";
+        let args = [
+            "--guide", "none", "--tune", radius, "--tile", tile, "--bands", "always",
+        ];
+        denoise(&input, &out, &args);
         out
     };
     let (whole, banded) = (run("0"), run("64"));

@@ -123,43 +123,60 @@ pub fn blend_weight(
     p: &BlendParams,
 ) -> Plane {
     let (w, h) = (input.width(), input.height());
-    let n = w * h;
     let c = input.channels().min(3);
     let mut change = Plane::zeros(w, h, 1);
     change
         .data_mut()
         .par_iter_mut()
         .enumerate()
-        .for_each(|(i, d)| {
-            *d = (0..c)
-                .map(|k| (smoothed.data()[k * n + i] - input.data()[k * n + i]).powi(2))
-                .sum::<f32>()
-                / c as f32;
-        });
+        .for_each(|(i, d)| *d = squared_change(input, smoothed, i, c));
     let change = box_mean(&change, p.radius);
     // the noise variance, averaged over the same box: a few frames' spread underestimates
     // heavy-tailed Monte Carlo noise at most pixels, its local mean much less so
     let vc = noise_variance.channels().min(3);
     let mut v = Plane::zeros(w, h, 1);
-    v.data_mut().par_iter_mut().enumerate().for_each(|(i, v)| {
-        let s = (0..vc)
-            .map(|k| noise_variance.data()[k * n + i])
-            .sum::<f32>()
-            / vc as f32;
-        *v = if s.is_finite() { s.max(0.0) } else { 0.0 };
-    });
+    v.data_mut()
+        .par_iter_mut()
+        .enumerate()
+        .for_each(|(i, v)| *v = mean_variance(noise_variance, i, vc));
     let v = box_mean(&v, p.radius);
     Plane::from_fn(w, h, 1, |x, y, _| {
         let i = y * w + x;
-        let v = v.data()[i] * p.noise_scale;
-        let bias = (change.data()[i] - v).max(0.0);
-        if v + bias <= 0.0 {
-            // nothing changed and no noise: either output is the same
-            1.0
-        } else {
-            v / (v + bias)
-        }
+        wiener_gain(change.data()[i], v.data()[i] * p.noise_scale)
     })
+}
+
+/// The mean over the first `c` channels of pixel `i`'s squared change from `input` to
+/// `smoothed`.
+fn squared_change(input: &Plane, smoothed: &Plane, i: usize, c: usize) -> f32 {
+    let n = input.pixels();
+    (0..c)
+        .map(|k| (smoothed.data()[k * n + i] - input.data()[k * n + i]).powi(2))
+        .sum::<f32>()
+        / c as f32
+}
+
+/// The mean over the first `c` channels of pixel `i`'s variance, 0 where it is not finite.
+fn mean_variance(variance: &Plane, i: usize, c: usize) -> f32 {
+    let n = variance.pixels();
+    let s = (0..c).map(|k| variance.data()[k * n + i]).sum::<f32>() / c as f32;
+    if s.is_finite() {
+        s.max(0.0)
+    } else {
+        0.0
+    }
+}
+
+/// The Wiener gain of a change `change` against noise `v` (both box means): `v / (v + b²)`,
+/// `b² = max(0, change − v)`; 1 where nothing changed and there is no noise (either output is
+/// the same).
+fn wiener_gain(change: f32, v: f32) -> f32 {
+    let bias = (change - v).max(0.0);
+    if v + bias <= 0.0 {
+        1.0
+    } else {
+        v / (v + bias)
+    }
 }
 
 /// Added to the squared local brightness that [`variance_blend_weight`] divides by (a floor for
@@ -172,13 +189,6 @@ pub const RELATIVE_FLOOR: f32 = 1e-3;
 pub struct VarianceBlend {
     /// Radius of the box the change and the variance are averaged over.
     pub radius: usize,
-}
-
-impl Default for VarianceBlend {
-    /// The classic denoiser's, chosen on the Mitsuba validation split (`docs/research/transfer.md`).
-    fn default() -> Self {
-        Self { radius: 4 }
-    }
 }
 
 /// The per-pixel weight (1 channel, in 0..=1) of `smoothed` over `input` where the renderer
@@ -207,28 +217,14 @@ pub fn variance_blend_weight(
         .for_each(|(i, (d, v))| {
             let l = (0..c).map(|k| bright.data()[k * n + i]).sum::<f32>() / c as f32;
             let scale = 1.0 / (l.max(0.0).powi(2) + RELATIVE_FLOOR);
-            let dd = (0..c)
-                .map(|k| (smoothed.data()[k * n + i] - input.data()[k * n + i]).powi(2))
-                .sum::<f32>()
-                / c as f32;
-            let s = (0..vc).map(|k| variance.data()[k * n + i]).sum::<f32>() / vc as f32;
+            let dd = squared_change(input, smoothed, i, c);
             *d = if dd.is_finite() { dd * scale } else { 0.0 };
-            *v = if s.is_finite() {
-                s.max(0.0) * scale
-            } else {
-                0.0
-            };
+            *v = mean_variance(variance, i, vc) * scale;
         });
     let terms = box_mean(&terms, p.radius);
     Plane::from_fn(w, h, 1, |x, y, _| {
         let i = y * w + x;
-        let (d, v) = (terms.data()[i], terms.data()[n + i]);
-        let bias = (d - v).max(0.0);
-        if v + bias <= 0.0 {
-            1.0
-        } else {
-            v / (v + bias)
-        }
+        wiener_gain(terms.data()[i], terms.data()[n + i])
     })
 }
 
