@@ -87,7 +87,7 @@ fn model_header(header: &[u8]) -> std::result::Result<(NetConfig, Recipe), Strin
         .ok_or("the model has no embedded configuration")?;
     let config = NetConfig::parse(text).map_err(|e| e.to_string())?;
     let recipe = match meta[RECIPE_KEY].as_str() {
-        Some(text) => Recipe::from_toml(text).map_err(|e| format!("its recipe: {e}"))?,
+        Some(text) => Recipe::from_toml(text, &config).map_err(|e| format!("its recipe: {e}"))?,
         None => Recipe::tuned_for(&config),
     };
     Ok((config, recipe))

@@ -4,7 +4,6 @@
 use radn_core::align::warp::Resampling;
 use radn_core::setting::{Positive, Setting};
 
-use super::tuned;
 use super::{Recipe, StabilizeRecipe};
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};
 use crate::infer::input_blend::InputBlend;
@@ -141,18 +140,15 @@ impl Recipe {
                     s => Some(InputBlend {
                         radius,
                         noise_scale: s.resolve(None).map(|p| p.0),
-                        variance_radius: Some(
-                            self.input_blend
-                                .map_or(tuned::INPUT_BLEND_VARIANCE_RADIUS, |b| {
-                                    b.variance_radius.unwrap_or(0)
-                                }),
-                        ),
+                        variance_radius: self.input_blend.and_then(|b| b.variance_radius),
                     }),
                 }
             }
             "input-blend.variance-radius" => {
                 let r = if value == "off" { 0 } else { whole(value)? };
                 match self.input_blend.as_mut() {
+                    // off stays as stored where it was never set (guided models)
+                    Some(b) if r == 0 && b.variance_radius.is_none() => {}
                     Some(b) => b.variance_radius = Some(r),
                     None => return Err(bad("the input blend is off (set input-blend first)")),
                 }

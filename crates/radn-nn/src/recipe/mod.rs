@@ -153,7 +153,7 @@ impl Recipe {
             input_blend: Some(InputBlend {
                 radius: tuned::INPUT_BLEND_RADIUS,
                 noise_scale: None,
-                variance_radius: Some(tuned::INPUT_BLEND_VARIANCE_RADIUS),
+                variance_radius: (!guided).then_some(tuned::INPUT_BLEND_VARIANCE_RADIUS),
             }),
             guide_mix: GuideMixRecipe {
                 weight: if guided { tuned::GUIDE_MIX } else { 0.0 },
@@ -190,11 +190,12 @@ impl Recipe {
         toml::to_string(self).expect("a recipe serialises")
     }
 
-    /// A recipe from TOML; an input blend stored before it had a renderer-variance radius gets
-    /// the tuned one.
-    pub fn from_toml(text: &str) -> Result<Self, String> {
+    /// A recipe from TOML, as a model of configuration `config` stored it: an unguided model's
+    /// input blend stored before it had a renderer-variance radius gets the tuned one (the
+    /// variance blend was chosen for unguided models only; guided ones keep theirs off).
+    pub fn from_toml(text: &str, config: &NetConfig) -> Result<Self, String> {
         let mut recipe: Self = toml::from_str(text).map_err(|e| e.to_string())?;
-        if let Some(b) = recipe.input_blend.as_mut() {
+        if let (Some(b), false) = (recipe.input_blend.as_mut(), config.inputs.guide) {
             b.variance_radius
                 .get_or_insert(tuned::INPUT_BLEND_VARIANCE_RADIUS);
         }
@@ -212,14 +213,39 @@ mod tests {
             let mut c = NetConfig::preset("small").unwrap();
             c.inputs.guide = guided;
             let r = Recipe::tuned_for(&c);
-            assert_eq!(Recipe::from_toml(&r.to_toml()).unwrap(), r);
+            assert_eq!(Recipe::from_toml(&r.to_toml(), &c).unwrap(), r);
         }
     }
 
     #[test]
     fn unknown_fields_are_refused() {
-        let mut text = Recipe::tuned_for(&NetConfig::preset("small").unwrap()).to_toml();
+        let c = NetConfig::preset("small").unwrap();
+        let mut text = Recipe::tuned_for(&c).to_toml();
         text.insert_str(0, "mystery = 1\n");
-        assert!(Recipe::from_toml(&text).unwrap_err().contains("mystery"));
+        assert!(Recipe::from_toml(&text, &c)
+            .unwrap_err()
+            .contains("mystery"));
+    }
+
+    #[test]
+    fn an_input_blend_stored_without_a_variance_radius_gets_one_only_in_unguided_models() {
+        // as model files written before the variance blend store it
+        let mut c = NetConfig::preset("small").unwrap();
+        let mut r = Recipe::tuned_for(&c);
+        r.input_blend.as_mut().unwrap().variance_radius = None;
+        let text = r.to_toml();
+        assert!(!text.contains("variance_radius"), "{text}");
+        let unguided = Recipe::from_toml(&text, &c).unwrap();
+        assert_eq!(
+            unguided.input_blend.unwrap().variance_radius,
+            Some(tuned::INPUT_BLEND_VARIANCE_RADIUS)
+        );
+        c.inputs.guide = true;
+        let guided = Recipe::from_toml(&text, &c).unwrap();
+        assert_eq!(guided.input_blend.unwrap().variance_radius, None);
+        // an explicit choice is kept either way
+        r.input_blend.as_mut().unwrap().variance_radius = Some(0);
+        let off = Recipe::from_toml(&r.to_toml(), &NetConfig::preset("small").unwrap()).unwrap();
+        assert_eq!(off.input_blend.unwrap().variance_radius, Some(0));
     }
 }
