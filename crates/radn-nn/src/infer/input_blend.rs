@@ -32,8 +32,8 @@ pub struct InputBlend {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub noise_scale: Option<f32>,
     /// Box radius of the blend on frames that carry the renderer's variance; `Some(0)` or
-    /// `None`: those frames get the estimated blend too. A recipe stored without it gets the
-    /// tuned radius when read ([`crate::recipe::Recipe::from_toml`]).
+    /// `None`: those frames get the estimated blend too. An unguided model's recipe stored
+    /// without it gets the tuned radius when read ([`crate::recipe::Recipe::from_toml`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub variance_radius: Option<usize>,
 }
