@@ -45,11 +45,12 @@ fn gauss(x: usize, y: usize, c: usize, frame: usize) -> f32 {
 /// Writes frames 1–5 of the sequence with noise of standard deviation `sigma`, in the generic
 /// layout, with the renderer's variance (`sigma²`) where `with_variance`.
 fn write_sequence(dir: &Path, sigma: f32, with_variance: bool) {
-    write_frames(dir, H, sigma, with_variance);
+    write_frames(dir, H, sigma, with_variance.then_some(1.0));
 }
 
-/// [`write_sequence`] `h` rows tall.
-fn write_frames(dir: &Path, h: usize, sigma: f32, with_variance: bool) {
+/// [`write_sequence`] `h` rows tall, its variance channels `overstated` times `sigma²` (a
+/// stratified sampler's variance AOV overstates its error), none where `None`.
+fn write_frames(dir: &Path, h: usize, sigma: f32, overstated: Option<f32>) {
     std::fs::create_dir_all(dir).unwrap();
     let n = W * h;
     let filled = |v: f32| vec![v; n];
@@ -61,8 +62,8 @@ fn write_frames(dir: &Path, h: usize, sigma: f32, with_variance: bool) {
                 .collect();
             ch.push((name.to_string(), beauty));
             ch.push((format!("albedo.{name}"), filled(0.5)));
-            if with_variance {
-                ch.push((format!("variance.{name}"), filled(sigma * sigma)));
+            if let Some(k) = overstated {
+                ch.push((format!("variance.{name}"), filled(k * sigma * sigma)));
             }
         }
         for (name, v) in [
@@ -151,12 +152,51 @@ fn with_the_renderers_variance_the_fallbacks_keep_a_clean_renders_detail_and_sti
 }
 
 #[test]
+fn a_variance_that_overstates_the_noise_is_scaled_back_to_it() {
+    // a clean render whose variance channels say 30 times its noise, as a low-discrepancy
+    // sampler's variance AOV can: taken as it is, the fallbacks read the stripes as noise (the
+    // unguided model ends at about 5 times the input's error, the classic denoiser at 1.8 times
+    // what it reaches with the true variance); scaled by 1/30 they do as with the true variance
+    let d = tempfile::tempdir().unwrap();
+    let honest = d.path().join("honest");
+    write_frames(&honest, H, 0.01, Some(1.0));
+    let overstated = d.path().join("overstated");
+    write_frames(&overstated, H, 0.01, Some(30.0));
+    let input = error(&honest);
+    for (method, key) in [
+        (["--method", "classic"], "classic.variance-scale"),
+        (["--guide", "none"], "input-blend.variance-scale"),
+    ] {
+        let run = |name: &str, data: &Path, extra: &[&str]| {
+            let out = d.path().join(format!("{name}-{}", method[1]));
+            let mut args = method.to_vec();
+            args.extend_from_slice(extra);
+            denoise(data, &out, &args);
+            error(&out)
+        };
+        let truth = run("truth", &honest, &[]);
+        let taken = run("taken", &overstated, &[]);
+        let scale = format!("{key}={}", 1.0 / 30.0);
+        let scaled = run("scaled", &overstated, &["--tune", &scale]);
+        assert!(scaled <= input, "{key}: {scaled} vs input {input}");
+        assert!(
+            scaled <= 1.1 * truth,
+            "{key}: {scaled} vs {truth} with the true variance"
+        );
+        assert!(
+            taken >= 1.5 * scaled,
+            "{key}: the overstated variance gives {taken}, scaled {scaled}"
+        );
+    }
+}
+
+#[test]
 fn with_the_renderers_variance_bands_still_equal_whole_frames() {
     // the variance blend's boxes read rows beyond each band: with a radius beyond the network's
     // own reach (its receptive field), the band halo has to grow for the blend
     let d = tempfile::tempdir().unwrap();
     let input = d.path().join("in");
-    write_frames(&input, TALL, 0.05, true);
+    write_frames(&input, TALL, 0.05, Some(1.0));
     let run = |tile: &str| {
         let out = d.path().join(format!("t{tile}"));
         let radius = "input-blend.variance-radius=150";

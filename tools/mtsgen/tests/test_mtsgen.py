@@ -144,3 +144,24 @@ def test_a_folder_is_not_rendered_half_with_variance(tmp_path):
     render.render_scene(s, str(tmp_path), range(1, 2), {"low": 4}, log=lambda *_: None)
     with pytest.raises(SystemExit, match="variance"):
         render.render_scene(s, str(tmp_path), range(2, 3), {"low": 4}, log=lambda *_: None, variance=True)
+
+
+def test_variance_check_finds_the_variance_of_a_low_discrepancy_sampler_overstated(tmp_path):
+    # a renderer's variance AOV is the samples' spread over their count: honest for white
+    # noise, far above a low-discrepancy sampler's error where the integrand is smooth (an
+    # exterior under a sky: 0.07 here against 0.6); scripts/variance-check tells them apart
+    out = {}
+    for sampler in ("independent", "ldsampler"):
+        s = scenes.build(9_100_007, 4, (64, 48), family="exterior", sampler=sampler,
+                         tex_dir=f"/tmp/radn-mtsgen-test-{os.getpid()}")
+        render.render_scene(s, str(tmp_path / sampler), range(1, 5), {"low": 16}, log=lambda *_: None,
+                            variance=True)
+        run = subprocess.run([sys.executable, str(ROOT / "scripts/variance-check"), str(tmp_path / sampler / "low")],
+                             capture_output=True, text=True, check=True)
+        line = run.stdout.strip()
+        out[sampler] = (float(line.split("frame-to-frame ")[1].split(",")[0]),
+                        float(line.split("suggested scale ")[1].split(";")[0]))
+    honest, overstated = out["independent"], out["ldsampler"]
+    assert 0.5 < honest[0] < 2.0 and honest[1] == 1.0, out
+    assert overstated[0] < 0.3 and abs(overstated[1] - overstated[0]) < 1e-3, out
+    assert overstated[0] < honest[0] / 4, out

@@ -42,6 +42,10 @@ pub const KEYS: &[(&str, &str)] = &[
         "classic.variance-blend",
         "box radius of the last blend where frames carry the renderer's variance|off",
     ),
+    (
+        "classic.variance-scale",
+        "factor on the renderer's variance (below 1 for stratified samplers)",
+    ),
 ];
 
 impl ClassicDenoiser {
@@ -86,7 +90,21 @@ impl ClassicDenoiser {
             "classic.variance-blend" => {
                 p.variance_blend = match value {
                     "off" => None,
-                    v => Some(VarianceBlend { radius: whole(v)? }),
+                    v => Some(VarianceBlend {
+                        radius: whole(v)?,
+                        scale: p.variance_blend.map_or(1.0, |b| b.scale),
+                    }),
+                }
+            }
+            "classic.variance-scale" => {
+                let s = num(value)?;
+                match p.variance_blend.as_mut() {
+                    Some(b) => b.scale = s,
+                    None => {
+                        return Err(bad(
+                            "the variance blend is off (classic.variance-blend=R first)",
+                        ))
+                    }
                 }
             }
             _ => {
@@ -117,6 +135,9 @@ impl ClassicDenoiser {
             "classic.variance-blend" => p
                 .variance_blend
                 .map_or("off".into(), |v| v.radius.to_string()),
+            "classic.variance-scale" => {
+                p.variance_blend.map_or("-".into(), |v| v.scale.to_string())
+            }
             _ => return None,
         })
     }
@@ -139,6 +160,17 @@ mod tests {
         assert_eq!(d.params.nlm.strength, 0.9);
         d.set("classic.flow-refine", "off").unwrap();
         assert!(d.params.flow_refine.is_none());
+        d.set("classic.variance-scale", "0.1").unwrap();
+        assert_eq!(d.params.variance_blend.unwrap().scale, 0.1);
+        d.set("classic.variance-blend", "2").unwrap();
+        assert_eq!(
+            d.params.variance_blend.unwrap().scale,
+            0.1,
+            "a radius keeps the scale"
+        );
+        assert!(d.set("classic.variance-scale", "0").is_err());
+        d.set("classic.variance-blend", "off").unwrap();
+        assert!(d.set("classic.variance-scale", "0.5").is_err());
         d.set("classic.guided-blend", "off").unwrap();
         assert!(d.set("classic.guided-noise-scale", "3").is_err());
         assert!(d

@@ -51,7 +51,7 @@ impl Default for ClassicParams {
             guided_blend: Some(BlendParams::default()),
             demodulate: true,
             // chosen on the Mitsuba validation split (docs/research/transfer.md)
-            variance_blend: Some(VarianceBlend { radius: 4 }),
+            variance_blend: Some(VarianceBlend::new(4)),
         }
     }
 }

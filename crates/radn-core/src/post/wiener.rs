@@ -189,6 +189,21 @@ pub const RELATIVE_FLOOR: f32 = 1e-3;
 pub struct VarianceBlend {
     /// Radius of the box the change and the variance are averaged over.
     pub radius: usize,
+    /// Factor on the renderer's variance: a variance AOV is the samples' spread over their
+    /// count, which overstates the error of stratified and low-discrepancy samplers.
+    #[serde(default = "unit_scale")]
+    pub scale: f32,
+}
+
+impl VarianceBlend {
+    /// The blend over a box of `radius`, taking the renderer's variance as it is.
+    pub fn new(radius: usize) -> Self {
+        Self { radius, scale: 1.0 }
+    }
+}
+
+fn unit_scale() -> f32 {
+    1.0
 }
 
 /// The per-pixel weight (1 channel, in 0..=1) of `smoothed` over `input` where the renderer
@@ -219,7 +234,7 @@ pub fn variance_blend_weight(
             let scale = 1.0 / (l.max(0.0).powi(2) + RELATIVE_FLOOR);
             let dd = squared_change(input, smoothed, i, c);
             *d = if dd.is_finite() { dd * scale } else { 0.0 };
-            *v = mean_variance(variance, i, vc) * scale;
+            *v = mean_variance(variance, i, vc) * p.scale * scale;
         });
     let terms = box_mean(&terms, p.radius);
     Plane::from_fn(w, h, 1, |x, y, _| {
@@ -322,7 +337,7 @@ mod tests {
         });
         let var = Plane::from_fn(w, h, 3, |x, _, _| amp(x) * amp(x) / 12.0);
         let smoothed = Plane::from_fn(w, h, 3, |x, _, _| if bright(x) { 2.0 } else { 0.03 });
-        let p = VarianceBlend { radius: 4 };
+        let p = VarianceBlend::new(4);
         let out = blend(
             &input,
             &smoothed,

@@ -36,6 +36,10 @@ pub struct InputBlend {
     /// without it gets the tuned radius when read ([`crate::recipe::Recipe::from_toml`]).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub variance_radius: Option<usize>,
+    /// Factor on the renderer's variance in that blend (`None`: 1): a variance AOV is the
+    /// samples' spread over their count, which overstates the error of stratified samplers.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub variance_scale: Option<f32>,
 }
 
 impl InputBlend {
@@ -49,7 +53,10 @@ impl InputBlend {
     ) -> Option<BlendStage> {
         match self.variance_radius {
             Some(radius) if renderer_variance && radius > 0 => {
-                return Some(BlendStage::RendererVariance(VarianceBlend { radius }))
+                return Some(BlendStage::RendererVariance(VarianceBlend {
+                    radius,
+                    scale: self.variance_scale.unwrap_or(1.0),
+                }))
             }
             _ => {}
         }
@@ -131,6 +138,7 @@ mod tests {
             radius: 1,
             noise_scale: None,
             variance_radius: Some(4),
+            variance_scale: None,
         };
         assert_eq!(b.params(Some(1e-5), &s).unwrap().noise_scale, s.min_scale);
         assert!(b.params(Some(10.0 * s.noisiest_level()), &s).is_none());
@@ -138,7 +146,7 @@ mod tests {
         // a frame with the renderer's variance is blended against it at every level
         for level in [None, Some(1e-5), Some(10.0 * s.noisiest_level())] {
             match b.stage(level, &s, true) {
-                Some(BlendStage::RendererVariance(v)) => assert_eq!(v.radius, 4),
+                Some(BlendStage::RendererVariance(v)) => assert_eq!((v.radius, v.scale), (4, 1.0)),
                 other => panic!("{other:?}"),
             }
         }
@@ -159,6 +167,7 @@ mod tests {
             radius: 2,
             noise_scale: Some(4.0),
             variance_radius: Some(4),
+            variance_scale: None,
         };
         for level in [None, Some(1e-5), Some(1.0)] {
             let p = b.params(level, &NoiseSchedule::example()).unwrap();

@@ -289,6 +289,7 @@ fn the_input_blend_keeps_a_noise_free_input_and_follows_a_noisy_one() {
         radius: 1,
         noise_scale: Some(2.0),
         variance_radius: Some(4),
+        variance_scale: None,
     });
     // five identical frames: no noise, so nothing the kernels change is explained by it
     let mut still = window(24, 20);

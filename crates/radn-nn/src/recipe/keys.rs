@@ -61,6 +61,10 @@ pub const KEYS: &[(&str, &str)] = &[
         "its box radius where frames carry the renderer's variance|off",
     ),
     (
+        "input-blend.variance-scale",
+        "factor on the renderer's variance (below 1 for stratified samplers)",
+    ),
+    (
         "mix.weight",
         "guide's weight in the guide mix, 0 to 1 (guided models)",
     ),
@@ -141,6 +145,7 @@ impl Recipe {
                         radius,
                         noise_scale: s.resolve(None).map(|p| p.0),
                         variance_radius: self.input_blend.and_then(|b| b.variance_radius),
+                        variance_scale: self.input_blend.and_then(|b| b.variance_scale),
                     }),
                 }
             }
@@ -150,6 +155,13 @@ impl Recipe {
                     // off stays as stored where it was never set (guided models)
                     Some(b) if r == 0 && b.variance_radius.is_none() => {}
                     Some(b) => b.variance_radius = Some(r),
+                    None => return Err(bad("the input blend is off (set input-blend first)")),
+                }
+            }
+            "input-blend.variance-scale" => {
+                let s = num(value)?;
+                match self.input_blend.as_mut() {
+                    Some(b) => b.variance_scale = (s != 1.0).then_some(s),
                     None => return Err(bad("the input blend is off (set input-blend first)")),
                 }
             }
@@ -250,6 +262,9 @@ impl Recipe {
                         r => r.to_string(),
                     })
             }
+            "input-blend.variance-scale" => self
+                .input_blend
+                .map_or("-".into(), |b| b.variance_scale.unwrap_or(1.0).to_string()),
             "mix.weight" => self.guide_mix.weight.to_string(),
             "mix.from" => match self.guide_mix.from {
                 MixGuide::FollowLevel => "auto".into(),
@@ -309,6 +324,9 @@ mod tests {
             .set("stabilize.floor", "0.001")
             .unwrap_err()
             .contains("off"));
+        r.set("input-blend.variance-scale", "0.1").unwrap();
+        assert_eq!(r.input_blend.unwrap().variance_scale, Some(0.1));
+        assert!(r.set("input-blend.variance-scale", "0").is_err());
         r.set("mix.outliers", "0.05:0.2").unwrap();
         assert_eq!(
             r.guide_mix.outliers,

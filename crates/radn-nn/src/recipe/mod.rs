@@ -154,6 +154,7 @@ impl Recipe {
                 radius: tuned::INPUT_BLEND_RADIUS,
                 noise_scale: None,
                 variance_radius: (!guided).then_some(tuned::INPUT_BLEND_VARIANCE_RADIUS),
+                variance_scale: None,
             }),
             guide_mix: GuideMixRecipe {
                 weight: if guided { tuned::GUIDE_MIX } else { 0.0 },
