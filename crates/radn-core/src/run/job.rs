@@ -18,6 +18,7 @@ use crate::io::exr_file::{ExrFile, SampleKind};
 use crate::io::frame::{Frame, FrameReader};
 use crate::io::output::{ensure_not_input, ensure_writable_dir};
 use crate::io::output_locks::OutputClaim;
+use crate::post::variance_check::{apply_scale, scale_of, Neighbour, RatioHistogram};
 use crate::run::banding::{
     frame_bands, hop_reach, window_band_rows, FrameBand, FrameStats, MotionReach, STATS_ROWS,
 };
@@ -267,6 +268,52 @@ impl SequenceJob {
 }
 
 impl SequenceJob {
+    /// Frame `k`'s variance scale, band by band from its decoded rows against its neighbours'
+    /// (those decoded): what [`WindowSweep`] finds on whole frames
+    /// ([`crate::post::variance_check`]). `None` where the frame has no variance or it is kept
+    /// as it is.
+    fn variance_scale(
+        &self,
+        k: usize,
+        decoded: &BTreeMap<usize, FrameStore>,
+        stats: &BTreeMap<usize, FrameStats>,
+        height: usize,
+    ) -> Result<Option<f32>> {
+        let reach = stats[&k].reach;
+        let neighbours = [
+            (k.checked_sub(1), Neighbour::Previous, reach.prev),
+            (Some(k + 1), Neighbour::Next, reach.next),
+        ];
+        let mut measured = Vec::new();
+        for (other, towards, reach) in neighbours {
+            let Some(other) = other.and_then(|j| decoded.get(&j)) else {
+                continue;
+            };
+            let mut ratios = RatioHistogram::default();
+            for y0 in (0..height).step_by(STATS_ROWS) {
+                let rows = y0..(y0 + STATS_ROWS).min(height);
+                let frame = decoded[&k].read(rows.clone())?;
+                if frame.variance.is_none() {
+                    return Ok(None);
+                }
+                // the rows its motion reaches, and the one below for the bilinear taps
+                let near = y0.saturating_sub(reach + 1)..(rows.end + reach + 2).min(height);
+                let neighbour = other.read(near.clone())?;
+                ratios.add_rows(
+                    &frame,
+                    y0,
+                    0..rows.len(),
+                    &neighbour,
+                    near.start,
+                    towards,
+                    height,
+                );
+            }
+            measured.push(ratios.measured());
+        }
+        Ok(scale_of(&measured))
+    }
+
     /// [`SequenceJob::run`] band by band: each output frame is denoised in bands of rows, each
     /// band from only the rows of its window's frames that the band reaches, and written block
     /// by block as its rows are done, so memory follows the band's size rather than the
@@ -328,6 +375,11 @@ impl SequenceJob {
                     decoded.insert(k, store.expect("a frame has rows"));
                 }
             }
+            // the centre's variance channels, checked against its neighbours
+            let scale = self.variance_scale(pos, &decoded, &stats, height)?;
+            if let Some(s) = scale {
+                tracing::debug!("frame {pos}: variance channels scaled by {s:.4} (checked)");
+            }
             if let (true, Some(originals)) = (needs_rendered, &self.rendered) {
                 for &k in idx.iter().flatten() {
                     let original = &originals[k];
@@ -380,6 +432,9 @@ impl SequenceJob {
                              features: &BTreeMap<usize, RowStore>|
              -> Result<Frame> {
                 let mut f = decoded[&k].read(rows.clone())?;
+                if let (true, Some(s)) = (k == pos, scale) {
+                    apply_scale(&mut f, s);
+                }
                 if let Some(store) = oidn.get(&k) {
                     f.guide = store.read_rows(rows.clone())?.pop();
                 }

@@ -13,6 +13,7 @@ use crate::error::Result;
 use crate::guide::JobGuides;
 use crate::io::exr_file::ExrFile;
 use crate::io::frame::{Frame, FrameReader};
+use crate::post::variance_check::{apply_scale, frame_scale};
 use crate::run::denoiser::{Denoised, WindowDenoiser};
 use crate::run::window::WindowReader;
 
@@ -95,6 +96,25 @@ impl<'a> WindowSweep<'a> {
                 }
             }
         }
+        // the centre's variance channels, checked against its neighbours (a window reads only
+        // its centre's), scaled for this window alone: the next centre is checked against this
+        // frame as it was decoded
+        let centre = self.windows.frame(pos);
+        let prev = pos.checked_sub(1).and_then(|j| self.windows.get(j));
+        let scale = centre
+            .variance
+            .as_ref()
+            .and_then(|_| frame_scale(centre, prev, self.windows.get(pos + 1)));
+        let decoded_variance = scale.and_then(|s| {
+            tracing::debug!("frame {pos}: variance channels scaled by {s:.4} (checked)");
+            if let Some(f) = self.prepared.get_mut(&pos) {
+                apply_scale(f, s);
+            }
+            let f = self.windows.frame_mut(pos);
+            let decoded = f.variance.clone();
+            apply_scale(f, s);
+            decoded
+        });
         times.preparing = preparing.elapsed();
         let denoising = Instant::now();
         let out = if prepares {
@@ -107,6 +127,9 @@ impl<'a> WindowSweep<'a> {
             method.denoise(&self.windows.window(pos))?
         };
         times.denoising = denoising.elapsed();
+        if let Some(v) = decoded_variance {
+            self.windows.frame_mut(pos).variance = Some(v);
+        }
         Ok((out, times))
     }
 
