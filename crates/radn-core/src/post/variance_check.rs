@@ -251,26 +251,16 @@ mod tests {
         );
         assert_eq!(honest, None);
         // 30 times the noise: the median ratio of an honest variance over 30
-        let mut h = RatioHistogram::default();
-        h.add_rows(
-            &frame(1, sigma, 1, 30.0),
-            0,
-            0..H,
-            &frame(0, sigma, 2, 30.0),
-            0,
-            Neighbour::Previous,
-            H,
-        );
-        let mut honest = RatioHistogram::default();
-        honest.add_rows(
-            &frame(1, sigma, 1, 1.0),
-            0,
-            0..H,
-            &frame(0, sigma, 2, 1.0),
-            0,
-            Neighbour::Previous,
-            H,
-        );
+        let ratios = |overstated: f32| {
+            let mut h = RatioHistogram::default();
+            let (f, prev) = (
+                frame(1, sigma, 1, overstated),
+                frame(0, sigma, 2, overstated),
+            );
+            h.add_rows(&f, 0, 0..H, &prev, 0, Neighbour::Previous, H);
+            h
+        };
+        let (h, honest) = (ratios(30.0), ratios(1.0));
         let (m, m1) = (h.median().unwrap(), honest.median().unwrap());
         assert!((0.5..1.5).contains(&m1), "honest median {m1}");
         assert!((m * 30.0 / m1 - 1.0).abs() < 0.1, "{m} vs {m1} / 30");
