@@ -149,7 +149,7 @@ def test_a_folder_is_not_rendered_half_with_variance(tmp_path):
 def test_variance_check_finds_the_variance_of_a_low_discrepancy_sampler_overstated(tmp_path):
     # a renderer's variance AOV is the samples' spread over their count: honest for white
     # noise, far above a low-discrepancy sampler's error where the integrand is smooth (an
-    # exterior under a sky: 0.07 here against 0.6); scripts/variance-check tells them apart
+    # exterior under a sky); scripts/variance-check tells them apart
     out = {}
     for sampler in ("independent", "ldsampler"):
         s = scenes.build(9_100_007, 4, (64, 48), family="exterior", sampler=sampler,

@@ -14,8 +14,8 @@ use std::ops::Range;
 use crate::io::frame::Frame;
 
 /// Below this median ratio the variance is taken to overstate the noise and is scaled by the
-/// median: honest variances gave 0.6 to 2.9 on radn's Mitsuba splits (heavy-tailed noise lowers
-/// the median, motion the vectors miss raises it), low-discrepancy samplers' 0.006 to 0.04.
+/// median: honest variances sit near 1 (heavy-tailed noise lowers the median, motion the
+/// vectors miss raises it), overstated ones far below (measured: docs/research/transfer.md).
 pub const OVERSTATED_BELOW: f32 = 0.3;
 
 /// Fewer compared pixels than this: no measurement.

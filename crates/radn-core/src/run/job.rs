@@ -280,37 +280,42 @@ impl SequenceJob {
         height: usize,
     ) -> Result<Option<f32>> {
         let reach = stats[&k].reach;
-        let neighbours = [
+        // the neighbours decoded, each with its own histogram; each band of the frame read once
+        let mut neighbours: Vec<(&FrameStore, Neighbour, usize, RatioHistogram)> = [
             (k.checked_sub(1), Neighbour::Previous, reach.prev),
             (Some(k + 1), Neighbour::Next, reach.next),
-        ];
-        let mut measured = Vec::new();
-        for (other, towards, reach) in neighbours {
-            let Some(other) = other.and_then(|j| decoded.get(&j)) else {
-                continue;
-            };
-            let mut ratios = RatioHistogram::default();
-            for y0 in (0..height).step_by(STATS_ROWS) {
-                let rows = y0..(y0 + STATS_ROWS).min(height);
-                let frame = decoded[&k].read(rows.clone())?;
-                if frame.variance.is_none() {
-                    return Ok(None);
-                }
+        ]
+        .into_iter()
+        .filter_map(|(j, towards, reach)| {
+            let store = decoded.get(&j?)?;
+            Some((store, towards, reach, RatioHistogram::default()))
+        })
+        .collect();
+        if neighbours.is_empty() {
+            return Ok(None);
+        }
+        for y0 in (0..height).step_by(STATS_ROWS) {
+            let rows = y0..(y0 + STATS_ROWS).min(height);
+            let frame = decoded[&k].read(rows.clone())?;
+            if frame.variance.is_none() {
+                return Ok(None);
+            }
+            for (store, towards, reach, ratios) in &mut neighbours {
                 // the rows its motion reaches, and the one below for the bilinear taps
-                let near = y0.saturating_sub(reach + 1)..(rows.end + reach + 2).min(height);
-                let neighbour = other.read(near.clone())?;
+                let near = y0.saturating_sub(*reach + 1)..(rows.end + *reach + 2).min(height);
+                let other = store.read(near.clone())?;
                 ratios.add_rows(
                     &frame,
                     y0,
                     0..rows.len(),
-                    &neighbour,
+                    &other,
                     near.start,
-                    towards,
+                    *towards,
                     height,
                 );
             }
-            measured.push(ratios.measured());
         }
+        let measured: Vec<Option<f32>> = neighbours.iter().map(|n| n.3.measured()).collect();
         Ok(scale_of(&measured))
     }
 
