@@ -14,6 +14,7 @@ pub mod device;
 pub mod error;
 pub mod infer;
 pub mod model;
+pub mod oidn_unet;
 pub mod profile;
 pub mod recipe;
 

@@ -163,6 +163,12 @@ impl OidnDenoiser {
         let api = Api::load(&lib).map_err(|detail| OidnError::Unavailable {
             detail: format!("{}: {detail}", path.display()),
         })?;
+        // a library found by its bare name is named by the file the loader read
+        let path = if path.is_absolute() {
+            path
+        } else {
+            super::oidn_library::loaded_file(api.new_device as *const c_void).unwrap_or(path)
+        };
         // SAFETY: OIDN's C API, called as oidn.h documents; the CUDA device is given one
         // device ID and the default stream (null).
         let device = unsafe {

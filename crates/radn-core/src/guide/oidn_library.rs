@@ -207,6 +207,28 @@ fn blender_lib_dirs(path: &std::ffi::OsStr) -> Vec<PathBuf> {
         .collect()
 }
 
+/// The file a loaded library was read from, where the system can say (a library opened by its
+/// bare name through the loader's search path): the object that holds `symbol`'s address.
+pub(super) fn loaded_file(symbol: *const c_void) -> Option<PathBuf> {
+    #[cfg(unix)]
+    {
+        let mut info: libc::Dl_info = unsafe { std::mem::zeroed() };
+        // SAFETY: dladdr only reads the loader's tables; `info` is a valid out-parameter.
+        if unsafe { libc::dladdr(symbol, &mut info) } == 0 || info.dli_fname.is_null() {
+            return None;
+        }
+        // SAFETY: the loader's NUL-terminated file name, valid while the library is loaded.
+        let name = unsafe { std::ffi::CStr::from_ptr(info.dli_fname) };
+        let path = PathBuf::from(name.to_string_lossy().into_owned());
+        std::fs::canonicalize(&path).ok().or(Some(path))
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = symbol;
+        None
+    }
+}
+
 pub(super) fn version_text(v: c_int) -> String {
     format!("{}.{}.{}", v / 10000, v / 100 % 100, v % 100)
 }

@@ -1,0 +1,312 @@
+//! Running an imported U-Net over a frame on the CPU, as OIDN's RT filter does: the inputs
+//! processed into the network's range (the HDR beauty at the frame's exposure, from OIDN's
+//! autoexposure unless a scale is given), the frame padded with zeros to a multiple of 16,
+//! split into tiles whose origins keep that alignment and which overlap by the network's reach
+//! so that tiled output equals whole-frame output exactly, and the output mapped back.
+
+use radn_core::guide::exposure::ExposureBins;
+use radn_core::image::plane::Plane;
+use rayon::prelude::*;
+
+use crate::oidn_unet::config::{After, Input, Skip, UnetConfig, ALIGNMENT};
+use crate::oidn_unet::cpu::blocked::Blocked;
+use crate::oidn_unet::cpu::conv::PackedConv;
+use crate::oidn_unet::transfer::{Processing, Transfer, AUX_ALBEDO, AUX_NORMAL};
+use crate::oidn_unet::OidnUnet;
+
+/// The images one run reads: what the model's [`Input`] names, each an RGB (XYZ) plane of the
+/// frame's size.
+#[derive(Clone, Copy, Debug)]
+pub struct UnetImages<'a> {
+    /// The beauty (beauty models).
+    pub color: Option<&'a Plane>,
+    /// The albedo (beauty models with auxiliaries, and the albedo prefilter's input).
+    pub albedo: Option<&'a Plane>,
+    /// The normal (beauty models with normals, and the normal prefilter's input).
+    pub normal: Option<&'a Plane>,
+}
+
+/// The U-Net's weights packed for the CPU kernels, ready to run on frames.
+pub struct UnetFilter {
+    config: UnetConfig,
+    convs: Vec<PackedConv>,
+    max_tile_pixels: usize,
+}
+
+/// What is wrong with a run's inputs.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum FilterError {
+    /// An image the model reads was not given.
+    #[error("the {model} model needs a{an} {image} image")]
+    Missing {
+        /// The OIDN model name.
+        model: String,
+        /// "n" or "", for the article.
+        an: &'static str,
+        /// Which image.
+        image: &'static str,
+    },
+    /// Images of different sizes, or not three channels.
+    #[error("the input images must be 3-channel and of one size ({0})")]
+    Shape(String),
+}
+
+/// Tile sides are at most this many pixels when no budget is set: a 1080p frame runs as one
+/// tile and a 4K one in a few.
+pub const DEFAULT_MAX_TILE_PIXELS: usize = 2176 * 1152;
+
+impl UnetFilter {
+    /// Packs `net`'s weights for the CPU.
+    pub fn new(net: &OidnUnet) -> Self {
+        let config = net.config().clone();
+        let mut convs = Vec::new();
+        let mut pools = Vec::new();
+        let mut prev = config.input.channels();
+        for (step, (shape, (w, b))) in config
+            .layers
+            .steps()
+            .iter()
+            .zip(config.convs.iter().zip(net.host_weights()))
+        {
+            let parts = match step.skip {
+                None => vec![prev],
+                Some(Skip::Input) => vec![prev, config.input.channels()],
+                Some(Skip::Pool(n)) => vec![prev, pools[n - 1]],
+            };
+            convs.push(PackedConv::new(&w, &b, shape.cout, &parts));
+            if step.after == After::Pool {
+                pools.push(shape.cout);
+            }
+            prev = shape.cout;
+        }
+        Self {
+            config,
+            convs,
+            max_tile_pixels: DEFAULT_MAX_TILE_PIXELS,
+        }
+    }
+
+    /// The network's configuration.
+    pub fn config(&self) -> &UnetConfig {
+        &self.config
+    }
+
+    /// Caps a tile's pixels (overlap included), trading speed for memory.
+    pub fn with_max_tile_pixels(mut self, pixels: usize) -> Self {
+        self.max_tile_pixels = pixels.max(ALIGNMENT * ALIGNMENT);
+        self
+    }
+
+    /// The input scale OIDN's autoexposure gives `color` (1 for models that are not HDR).
+    pub fn autoexposure(&self, color: &Plane) -> f32 {
+        if !matches!(self.config.input, Input::Beauty { hdr: true, .. }) {
+            return 1.0;
+        }
+        let mut bins = ExposureBins::new(color.width(), color.height());
+        bins.add_rows(0, color);
+        bins.exposure()
+    }
+
+    /// How the model's main input is processed.
+    fn main_processing(&self) -> Processing {
+        match self.config.input {
+            Input::Beauty { hdr: true, .. } => Processing {
+                transfer: Transfer::Pu,
+                signed: false,
+                hdr: true,
+            },
+            Input::Beauty { hdr: false, .. } | Input::Albedo => Processing {
+                transfer: Transfer::Srgb,
+                signed: false,
+                hdr: false,
+            },
+            Input::Normal => Processing {
+                transfer: Transfer::Linear,
+                signed: true,
+                hdr: false,
+            },
+        }
+    }
+
+    /// The planes the network reads, in order, with their processing.
+    fn planes<'a>(
+        &self,
+        images: &UnetImages<'a>,
+    ) -> Result<Vec<(&'a Plane, Processing)>, FilterError> {
+        let missing = |an, image| FilterError::Missing {
+            model: self.config.weights.clone(),
+            an,
+            image,
+        };
+        let main = self.main_processing();
+        let planes = match self.config.input {
+            Input::Beauty { albedo, normal, .. } => {
+                let mut v = vec![(images.color.ok_or(missing("", "colour"))?, main)];
+                if albedo {
+                    v.push((images.albedo.ok_or(missing("n", "albedo"))?, AUX_ALBEDO));
+                }
+                if normal {
+                    v.push((images.normal.ok_or(missing("", "normal"))?, AUX_NORMAL));
+                }
+                v
+            }
+            Input::Albedo => vec![(images.albedo.ok_or(missing("n", "albedo"))?, main)],
+            Input::Normal => vec![(images.normal.ok_or(missing("", "normal"))?, main)],
+        };
+        let (w, h) = (planes[0].0.width(), planes[0].0.height());
+        if planes
+            .iter()
+            .any(|(p, _)| p.width() != w || p.height() != h || p.channels() != 3)
+        {
+            return Err(FilterError::Shape(
+                planes
+                    .iter()
+                    .map(|(p, _)| format!("{}×{}×{}", p.width(), p.height(), p.channels()))
+                    .collect::<Vec<_>>()
+                    .join(", "),
+            ));
+        }
+        Ok(planes)
+    }
+
+    /// Denoises one frame at input scale `scale` (OIDN's autoexposure when `None`): the model's
+    /// output as an RGB (XYZ for normals) plane of the frame's size.
+    pub fn run(&self, images: &UnetImages, scale: Option<f32>) -> Result<Plane, FilterError> {
+        let planes = self.planes(images)?;
+        let (w, h) = (planes[0].0.width(), planes[0].0.height());
+        let scale = match scale {
+            Some(s) => s,
+            None => match images.color {
+                Some(c) if self.main_processing().hdr => self.autoexposure(c),
+                _ => 1.0,
+            },
+        };
+        let mut out = Plane::zeros(w, h, 3);
+        for tile in self.tiles(w, h) {
+            let input = self.tile_input(&planes, &tile, scale);
+            let result = self.forward(input);
+            self.tile_output(&result, &tile, scale, &mut out);
+        }
+        Ok(out)
+    }
+
+    /// The tiles that cover a `w × h` frame.
+    pub fn tiles(&self, w: usize, h: usize) -> Vec<Tile> {
+        let (pw, ph) = (w.next_multiple_of(ALIGNMENT), h.next_multiple_of(ALIGNMENT));
+        let ov = self.config.layers.overlap();
+        // one tile where the padded frame fits the budget, else square cores as large as the
+        // budget allows once their overlap is added
+        let (cx, cy) = if pw * ph <= self.max_tile_pixels {
+            (pw, ph)
+        } else {
+            let side = (self.max_tile_pixels as f64).sqrt() as usize;
+            let core = (side.saturating_sub(2 * ov) / ALIGNMENT * ALIGNMENT).max(ALIGNMENT);
+            (core, core)
+        };
+        let spans = |n: usize, padded: usize, core: usize| -> Vec<(usize, usize, usize, usize)> {
+            (0..padded)
+                .step_by(core)
+                .map(|a| {
+                    let b = (a + core).min(padded);
+                    (a.saturating_sub(ov), a, b.min(n), (b + ov).min(padded))
+                })
+                .filter(|&(_, a, b, _)| a < b)
+                .collect()
+        };
+        let (xs, ys) = (spans(w, pw, cx), spans(h, ph, cy));
+        let mut tiles = Vec::new();
+        for &(y0, ya, yb, y1) in &ys {
+            for &(x0, xa, xb, x1) in &xs {
+                tiles.push(Tile {
+                    buffer: [x0, y0, x1, y1],
+                    core: [xa, ya, xb, yb],
+                });
+            }
+        }
+        tiles
+    }
+
+    /// A tile's processed input: the frame's values inside the frame, zeros in its padding.
+    fn tile_input(&self, planes: &[(&Plane, Processing)], tile: &Tile, scale: f32) -> Blocked {
+        let [x0, y0, x1, y1] = tile.buffer;
+        let (tw, th) = (x1 - x0, y1 - y0);
+        let channels = 3 * planes.len();
+        let mut planar = vec![0.0f32; channels * tw * th];
+        planar
+            .par_chunks_mut(tw * th)
+            .enumerate()
+            .for_each(|(c, dst)| {
+                let (plane, proc_) = planes[c / 3];
+                let src = plane.channel(c % 3);
+                let (fw, fh) = (plane.width(), plane.height());
+                for y in y0..y1.min(fh) {
+                    for x in x0..x1.min(fw) {
+                        dst[(y - y0) * tw + x - x0] = proc_.input(src[y * fw + x], scale);
+                    }
+                }
+            });
+        Blocked::from_planar(&planar, channels, th, tw)
+    }
+
+    /// Copies a tile's core from the network's output into the frame, mapped back to linear.
+    fn tile_output(&self, result: &Blocked, tile: &Tile, scale: f32, out: &mut Plane) {
+        let [x0, y0, _, _] = tile.buffer;
+        let [xa, ya, xb, yb] = tile.core;
+        let proc_ = self.main_processing();
+        let w = out.width();
+        for c in 0..3 {
+            let dst = out.channel_mut(c);
+            dst.par_chunks_mut(w)
+                .enumerate()
+                .skip(ya)
+                .take(yb - ya)
+                .for_each(|(y, row)| {
+                    for (x, v) in row.iter_mut().enumerate().take(xb).skip(xa) {
+                        *v = proc_.output(result.get(c, y - y0, x - x0), scale);
+                    }
+                });
+        }
+    }
+
+    /// The network on one processed tile (sides multiples of 16): its 3 output channels.
+    pub fn forward(&self, input: Blocked) -> Blocked {
+        let steps = self.config.layers.steps();
+        let mut pools: Vec<Blocked> = Vec::new();
+        let mut x: Option<Blocked> = None;
+        for (step, conv) in steps.iter().zip(&self.convs) {
+            // the previous step's output: a pooling's is the last kept pool
+            let prev = match (&x, pools.last()) {
+                (Some(x), _) => x,
+                (None, Some(p)) => p,
+                (None, None) => &input,
+            };
+            let y = match step.skip {
+                None => conv.run(&[prev]),
+                Some(Skip::Input) => conv.run(&[prev, &input]),
+                Some(Skip::Pool(n)) => conv.run(&[prev, &pools[n - 1]]),
+            };
+            x = Some(match step.after {
+                After::Nothing => y,
+                After::Pool => {
+                    let p = y.max_pool();
+                    drop(y);
+                    pools.push(p);
+                    x = None;
+                    continue;
+                }
+                After::Upsample => y.upsample(),
+            });
+        }
+        x.expect("the network has steps")
+    }
+}
+
+/// One tile: the buffer the network runs on and the core it writes, as `[x0, y0, x1, y1]` in
+/// frame pixels (the buffer may pass the frame into its zero padding).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Tile {
+    /// The region the network reads.
+    pub buffer: [usize; 4],
+    /// The region whose output is kept.
+    pub core: [usize; 4],
+}
