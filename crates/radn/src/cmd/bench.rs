@@ -44,6 +44,11 @@ pub struct Args {
     /// albedo and normal filters, then the beauty's: radn's guide), images in memory.
     #[arg(long, conflicts_with_all = ["network", "convs", "classic"])]
     pub oidn: bool,
+    /// Instead: time radn's imported OIDN U-Nets (the standard noisy-auxiliary model and the
+    /// large clean-auxiliary one) beside OIDN's own filter running the same weights, on the
+    /// first frame of --input tiled to 1920×1080, filter time only, in one run.
+    #[arg(long, conflicts_with_all = ["network", "convs", "classic", "oidn"])]
+    pub unet: bool,
     /// For --network (training and --inference) and --oidn: where it runs, cpu or cuda[:N].
     #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
     pub device: radn_nn::device::ComputeDevice,
@@ -80,6 +85,9 @@ pub fn run(a: Args) -> Result<()> {
     if a.oidn {
         return oidn(&reader, &files[0].1, a.repeat, a.device);
     }
+    if a.unet {
+        return unet(&reader, &files[0].1, a.repeat);
+    }
     let paths: Vec<PathBuf> = files[..5].iter().map(|(_, p)| p.clone()).collect();
     let t = time_windows(&reader, &paths, a.repeat, a.classic)?;
     let size = t.size;
@@ -110,6 +118,87 @@ pub fn run(a: Args) -> Result<()> {
             "classic per frame:{:8.1} ms   {:7.2} MP/s (decode + refine + window)",
             total * 1e3,
             mp / total
+        );
+    }
+    Ok(())
+}
+
+/// A plane tiled (repeated) to `w × h`.
+fn tiled(p: &radn_core::Plane, w: usize, h: usize) -> radn_core::Plane {
+    radn_core::Plane::from_fn(w, h, p.channels(), |x, y, c| {
+        p.get(x % p.width(), y % p.height(), c)
+    })
+}
+
+/// The median of `repeats` timed runs of `f` after one warm-up.
+fn median_secs(repeats: usize, mut f: impl FnMut() -> Result<()>) -> Result<f64> {
+    let mut secs = Vec::new();
+    for k in 0..=repeats.max(1) {
+        let started = std::time::Instant::now();
+        f()?;
+        if k > 0 {
+            secs.push(started.elapsed().as_secs_f64());
+        }
+    }
+    secs.sort_by(f64::total_cmp);
+    Ok(secs[secs.len() / 2])
+}
+
+/// Times radn's U-Net port beside OIDN's filter on the same 1080p frame and weights.
+fn unet(
+    reader: &radn_core::io::frame::FrameReader,
+    path: &std::path::Path,
+    repeats: usize,
+) -> Result<()> {
+    use radn_core::guide::{OidnDenoiser, OidnQuality};
+    use radn_nn::oidn_unet::filter::{UnetFilter, UnetImages};
+    let mut oidn = OidnDenoiser::new(0)?;
+    let lib = radn_nn::oidn_unet::library::WeightsLibrary::open(oidn.library())?;
+    let (f, _) = reader.read(path)?;
+    let (w, h) = (1920, 1080);
+    let albedo = f
+        .albedo
+        .as_ref()
+        .ok_or_else(|| anyhow!("'{}' has no albedo", path.display()))?;
+    let normal = f
+        .normal
+        .as_ref()
+        .ok_or_else(|| anyhow!("'{}' has no normal", path.display()))?;
+    let (c, a, n) = (tiled(&f.color, w, h), tiled(albedo, w, h), tiled(normal, w, h));
+    println!(
+        "radn's U-Net beside Intel Open Image Denoise {} ({}), {w}x{h}, {} threads, median of {repeats}",
+        oidn.version(),
+        lib.path().display(),
+        rayon::current_num_threads()
+    );
+    let device = radn_nn::burn::tensor::Device::flex();
+    for (name, quality, clean) in [
+        ("rt_hdr_alb_nrm", OidnQuality::High, false),
+        ("rt_hdr_calb_cnrm_large", OidnQuality::High, true),
+    ] {
+        let net = radn_nn::oidn_unet::import::import(&lib, name, &device)?;
+        let gmac = net.config().macs_per_pixel() * (w * h) as f64 / 1e9;
+        let filter = UnetFilter::new(&net);
+        let images = UnetImages {
+            color: Some(&c),
+            albedo: Some(&a),
+            normal: Some(&n),
+        };
+        let ours = median_secs(repeats, || {
+            filter.run(&images, None)?;
+            Ok(())
+        })?;
+        let theirs = median_secs(repeats, || {
+            oidn.beauty(&c, Some(&a), Some(&n), quality, clean)?;
+            Ok(())
+        })?;
+        println!(
+            "{name:24} radn {:7.0} ms ({:5.0} GFLOP/s)   OIDN {:7.0} ms ({:5.0} GFLOP/s)   radn/OIDN {:.2}",
+            ours * 1e3,
+            2.0 * gmac / ours,
+            theirs * 1e3,
+            2.0 * gmac / theirs,
+            ours / theirs
         );
     }
     Ok(())
