@@ -75,14 +75,20 @@ pub fn save(net: &OidnUnet, path: &Path) -> Result<()> {
     })
 }
 
-/// Whether `bytes` start a U-Net model file (its header read, nothing else).
+/// Whether `bytes` start a U-Net model file: the SafeTensors JSON header (after its 8-byte
+/// length) names the format; nothing else is read.
 pub fn is_unet(bytes: &[u8]) -> bool {
-    SafeTensors::read_metadata(bytes).is_ok_and(|(_, m)| {
-        m.metadata()
-            .as_ref()
-            .and_then(|m| m.get(FORMAT_KEY))
-            .is_some_and(|f| f == FORMAT)
-    })
+    let Some(len) = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().unwrap())) else {
+        return false;
+    };
+    let Some(header) = usize::try_from(len)
+        .ok()
+        .and_then(|n| bytes.get(8..8usize.checked_add(n)?))
+    else {
+        return false;
+    };
+    serde_json::from_slice::<serde_json::Value>(header)
+        .is_ok_and(|j| j["__metadata__"][FORMAT_KEY].as_str() == Some(FORMAT))
 }
 
 /// Whether the file at `path` is a U-Net model file (only its header is read).

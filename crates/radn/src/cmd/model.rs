@@ -10,9 +10,14 @@ use crate::input::{check_threshold, tune_pairs};
 
 /// Arguments of `radn model`.
 #[derive(clap::Args)]
+#[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
-    /// The model file (SafeTensors, as `radn train` writes).
-    pub file: PathBuf,
+    /// Import one of OIDN's trained U-Nets instead.
+    #[command(subcommand)]
+    pub action: Option<Action>,
+    /// The model file (SafeTensors, as `radn train` or `radn model import-oidn` writes).
+    #[arg(required = true)]
+    pub file: Option<PathBuf>,
     /// Change a recipe setting in the copy written to --out (`radn denoise --tune help` lists
     /// the keys).
     #[arg(long, value_name = "KEY=VALUE", requires = "out")]
@@ -22,14 +27,95 @@ pub struct Args {
     pub out: Option<PathBuf>,
 }
 
+/// What `radn model` can do besides showing and tuning a file.
+#[derive(clap::Subcommand)]
+pub enum Action {
+    /// Read one of OIDN's trained U-Nets from an OIDN 2.x core library into a radn model file
+    /// (runnable by `radn denoise --method spatial --model FILE`).
+    ImportOidn(ImportArgs),
+}
+
+/// Arguments of `radn model import-oidn`.
+#[derive(clap::Args)]
+pub struct ImportArgs {
+    /// The OIDN library (its core library, the main library beside it, or their folder);
+    /// default: the one `radn denoise` finds (RADN_OIDN_LIBRARY, OIDN_DIR, the loader path,
+    /// the pyoidn or bpy wheel, a Blender on PATH).
+    pub library: Option<PathBuf>,
+    /// OIDN's name for the model: rt_hdr_alb_nrm, rt_hdr_calb_cnrm_large, rt_alb_large,
+    /// rt_nrm_large, … (`--weights list` lists the library's).
+    #[arg(long, default_value = radn_nn::oidn_unet::import::DEFAULT_WEIGHTS)]
+    pub weights: String,
+    /// The model file to write (a new file: nothing is replaced).
+    #[arg(short, long, value_name = "FILE", required_unless_present = "list")]
+    pub out: Option<PathBuf>,
+    /// List the models the library carries instead.
+    #[arg(long)]
+    pub list: bool,
+}
+
+/// Imports OIDN's weights into a model file.
+fn import_oidn(a: ImportArgs) -> Result<()> {
+    use radn_nn::oidn_unet::library::WeightsLibrary;
+    let library = match a.library {
+        Some(p) => p,
+        None => radn_core::guide::OidnDenoiser::new(1)
+            .context("finding OIDN (name its library: radn model import-oidn LIBRARY)")?
+            .library()
+            .to_path_buf(),
+    };
+    let lib = WeightsLibrary::open(&library)?;
+    if a.list {
+        println!("{}: {}", lib.path().display(), lib.names().join(" "));
+        return Ok(());
+    }
+    let out = a.out.expect("clap requires --out without --list");
+    if out.exists() {
+        bail!("'{}' exists; radn model import-oidn writes a new file", out.display());
+    }
+    let device = ComputeDevice::Cpu.open()?;
+    let net = radn_nn::oidn_unet::import::import(&lib, &a.weights, &device)?;
+    radn_nn::oidn_unet::store::save(&net, &out)
+        .with_context(|| format!("writing '{}'", out.display()))?;
+    let c = net.config();
+    println!(
+        "{}: OIDN {} '{}' ({:?} layers, {} parameters) from {}",
+        out.display(),
+        c.oidn_version,
+        c.weights,
+        c.layers,
+        c.parameters(),
+        lib.path().display()
+    );
+    Ok(())
+}
+
 /// Prints the network and recipe, or writes the copy with its recipe tuned.
 pub fn run(a: Args) -> Result<()> {
+    if let Some(Action::ImportOidn(i)) = a.action {
+        return import_oidn(i);
+    }
+    let file = a.file.expect("clap requires a file without a subcommand");
     let device = ComputeDevice::Cpu.open()?;
-    let mut model = radn_nn::model::store::load(&a.file, &device)?;
+    if radn_nn::oidn_unet::store::is_unet_file(&file) {
+        if a.out.is_some() {
+            bail!("'{}' is an imported OIDN U-Net: it has no recipe to tune", file.display());
+        }
+        let net = radn_nn::oidn_unet::store::load(&file, &device)?;
+        println!(
+            "# {}\n# an imported OIDN U-Net: {} parameters, {:.0} multiply-adds per pixel\n\n{}",
+            file.display(),
+            net.config().parameters(),
+            net.config().macs_per_pixel(),
+            net.config().to_toml()
+        );
+        return Ok(());
+    }
+    let mut model = radn_nn::model::store::load(&file, &device)?;
     let Some(out) = a.out else {
         println!(
             "# {}\n\n# network\n{}",
-            a.file.display(),
+            file.display(),
             model.config.to_toml()
         );
         println!("# recipe\n{}", model.recipe.to_toml());
