@@ -26,6 +26,48 @@ pub const GUIDED_MODEL: &[u8] = include_bytes!("../../../models/guided-mix.safet
 /// The name errors and reports use for the compiled-in guided model.
 pub const GUIDED_MODEL_NAME: &str = "<built-in guided model>";
 
+/// OIDN's noisy-auxiliary U-Net (`rt_hdr_alb_nrm`), converted by `radn model import-oidn`
+/// and compiled in (Apache-2.0, `models/NOTICE`): what `--method spatial` runs.
+const UNET_BEAUTY: &[u8] = include_bytes!("../../../models/oidn-rt_hdr_alb_nrm.safetensors");
+/// OIDN's large clean-auxiliary U-Net (`rt_hdr_calb_cnrm_large`), for `--prefilter`.
+const UNET_BEAUTY_CLEAN: &[u8] =
+    include_bytes!("../../../models/oidn-rt_hdr_calb_cnrm_large.safetensors");
+/// OIDN's large albedo prefilter (`rt_alb_large`).
+const UNET_ALBEDO: &[u8] = include_bytes!("../../../models/oidn-rt_alb_large.safetensors");
+/// OIDN's large normal prefilter (`rt_nrm_large`).
+const UNET_NORMAL: &[u8] = include_bytes!("../../../models/oidn-rt_nrm_large.safetensors");
+
+/// The spatial method: the U-Net file `path` or the compiled-in one, and with `prefilter`
+/// the compiled-in auxiliary prefilters and (without `path`) the clean-auxiliary model.
+pub fn spatial(
+    path: Option<&Path>,
+    prefilter: bool,
+) -> Result<radn_nn::oidn_unet::denoiser::SpatialDenoiser> {
+    use radn_nn::oidn_unet::{denoiser::SpatialDenoiser, filter::UnetFilter, store};
+    let device = Device::flex();
+    let builtin = |bytes: &[u8], name: &str| -> Result<UnetFilter> {
+        Ok(UnetFilter::new(&store::load_bytes(
+            bytes,
+            Path::new(name),
+            &device,
+        )?))
+    };
+    let beauty = match path {
+        Some(p) => UnetFilter::new(&store::load(p, &device)?),
+        None if prefilter => builtin(UNET_BEAUTY_CLEAN, "<built-in rt_hdr_calb_cnrm_large>")?,
+        None => builtin(UNET_BEAUTY, "<built-in rt_hdr_alb_nrm>")?,
+    };
+    Ok(if prefilter {
+        SpatialDenoiser::prefiltered(
+            beauty,
+            builtin(UNET_ALBEDO, "<built-in rt_alb_large>")?,
+            builtin(UNET_NORMAL, "<built-in rt_nrm_large>")?,
+        )
+    } else {
+        SpatialDenoiser::new(beauty)
+    })
+}
+
 /// Loads `path`, or the compiled-in default model when none is given.
 pub fn load(path: Option<&Path>, device: &Device) -> Result<Denoiser> {
     load_for(path, false, device)

@@ -80,7 +80,10 @@ fn model_header(header: &[u8]) -> std::result::Result<(NetConfig, Recipe), Strin
         .map_err(|_| "not a model file (bad SafeTensors header)".to_string())?;
     let meta = &json["__metadata__"];
     if meta[FORMAT_KEY].as_str() == Some(crate::oidn_unet::store::FORMAT) {
-        return Err("an imported OIDN U-Net, not a Robust Average network (run it with --method spatial)".into());
+        return Err(
+            "an imported OIDN U-Net, not a Robust Average network (run it with --method spatial)"
+                .into(),
+        );
     }
     if meta[FORMAT_KEY].as_str() != Some(FORMAT) {
         return Err("not a radn model (no radn.format metadata)".into());

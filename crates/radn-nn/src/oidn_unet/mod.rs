@@ -6,6 +6,7 @@
 
 pub mod config;
 pub mod cpu;
+pub mod denoiser;
 pub mod filter;
 pub mod import;
 pub mod library;

@@ -78,7 +78,10 @@ pub fn save(net: &OidnUnet, path: &Path) -> Result<()> {
 /// Whether `bytes` start a U-Net model file: the SafeTensors JSON header (after its 8-byte
 /// length) names the format; nothing else is read.
 pub fn is_unet(bytes: &[u8]) -> bool {
-    let Some(len) = bytes.get(..8).map(|b| u64::from_le_bytes(b.try_into().unwrap())) else {
+    let Some(len) = bytes
+        .get(..8)
+        .map(|b| u64::from_le_bytes(b.try_into().unwrap()))
+    else {
         return false;
     };
     let Some(header) = usize::try_from(len)

@@ -164,7 +164,11 @@ fn unet(
         .normal
         .as_ref()
         .ok_or_else(|| anyhow!("'{}' has no normal", path.display()))?;
-    let (c, a, n) = (tiled(&f.color, w, h), tiled(albedo, w, h), tiled(normal, w, h));
+    let (c, a, n) = (
+        tiled(&f.color, w, h),
+        tiled(albedo, w, h),
+        tiled(normal, w, h),
+    );
     println!(
         "radn's U-Net beside Intel Open Image Denoise {} ({}), {w}x{h}, {} threads, median of {repeats}",
         oidn.version(),

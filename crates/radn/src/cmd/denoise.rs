@@ -22,6 +22,8 @@ pub enum Method {
     Network,
     /// The non-neural temporal denoiser.
     Classic,
+    /// OIDN's U-Net on each frame alone, run by radn (no temporal step, no OIDN library).
+    Spatial,
 }
 
 /// Storage type of denoised channels.
@@ -77,7 +79,7 @@ pub struct Args {
     #[command(flatten)]
     pub channels: ChannelArgs,
 
-    /// network, or classic (non-neural).
+    /// network, classic (non-neural) or spatial (OIDN's U-Net per frame).
     #[arg(
         long,
         value_enum,
@@ -98,6 +100,10 @@ pub struct Args {
     /// A model file instead of the built-in ones.
     #[arg(long, value_name = "FILE", help_heading = "Quality")]
     pub model: Option<PathBuf>,
+    /// With --method spatial: clean the albedo and normal with OIDN's large auxiliary U-Nets
+    /// and run its large clean-auxiliary beauty U-Net (OIDN-prefiltered's three networks).
+    #[arg(long, help_heading = "Quality")]
+    pub prefilter: bool,
     /// 1: as tuned; lower keeps more of the input.
     #[arg(long, default_value_t = 1.0, value_parser = parse_strength, value_name = "S",
           help_heading = "Quality")]
@@ -187,6 +193,17 @@ pub fn run(a: Args) -> Result<()> {
             }
             println!("radn: classic path (non-neural)");
             (Box::new(classic_from(&a)?), None, None)
+        }
+        Method::Spatial => {
+            if matches!(&a.guide, GuideRequest::Given(g) if g.is_some()) {
+                bail!("--guide steers a guided network; --method spatial reads no guide");
+            }
+            if a.device.is_gpu() {
+                bail!("--device {}: --method spatial runs on the CPU", a.device);
+            }
+            let d = crate::model::spatial(a.model.as_deref(), a.prefilter)?;
+            println!("radn: spatial path, per frame: {}", d.summary());
+            (Box::new(d), None, None)
         }
         Method::Network => {
             let chosen = choose_path(a.model.as_deref(), &a.guide, a.oidn_threads, a.device)?;

@@ -71,7 +71,10 @@ fn import_oidn(a: ImportArgs) -> Result<()> {
     }
     let out = a.out.expect("clap requires --out without --list");
     if out.exists() {
-        bail!("'{}' exists; radn model import-oidn writes a new file", out.display());
+        bail!(
+            "'{}' exists; radn model import-oidn writes a new file",
+            out.display()
+        );
     }
     let device = ComputeDevice::Cpu.open()?;
     let net = radn_nn::oidn_unet::import::import(&lib, &a.weights, &device)?;
@@ -99,7 +102,10 @@ pub fn run(a: Args) -> Result<()> {
     let device = ComputeDevice::Cpu.open()?;
     if radn_nn::oidn_unet::store::is_unet_file(&file) {
         if a.out.is_some() {
-            bail!("'{}' is an imported OIDN U-Net: it has no recipe to tune", file.display());
+            bail!(
+                "'{}' is an imported OIDN U-Net: it has no recipe to tune",
+                file.display()
+            );
         }
         let net = radn_nn::oidn_unet::store::load(&file, &device)?;
         println!(
