@@ -9,7 +9,7 @@ use radn_core::image::plane::Plane;
 use rayon::prelude::*;
 
 use crate::oidn_unet::config::{After, Input, Skip, UnetConfig, ALIGNMENT};
-use crate::oidn_unet::cpu::blocked::Blocked;
+use crate::oidn_unet::cpu::blocked::{Blocked, Scratch, LANES};
 use crate::oidn_unet::cpu::conv::PackedConv;
 use crate::oidn_unet::transfer::{Processing, Transfer, AUX_ALBEDO, AUX_NORMAL};
 use crate::oidn_unet::OidnUnet;
@@ -31,6 +31,7 @@ pub struct UnetFilter {
     config: UnetConfig,
     convs: Vec<PackedConv>,
     max_tile_pixels: usize,
+    scratch: Scratch,
 }
 
 /// What is wrong with a run's inputs.
@@ -83,6 +84,7 @@ impl UnetFilter {
             config,
             convs,
             max_tile_pixels: DEFAULT_MAX_TILE_PIXELS,
+            scratch: Scratch::default(),
         }
     }
 
@@ -183,9 +185,20 @@ impl UnetFilter {
         };
         let mut out = Plane::zeros(w, h, 3);
         for tile in self.tiles(w, h) {
+            let t0 = std::time::Instant::now();
             let input = self.tile_input(&planes, &tile, scale);
+            let t1 = std::time::Instant::now();
             let result = self.forward(input);
+            let t2 = std::time::Instant::now();
             self.tile_output(&result, &tile, scale, &mut out);
+            self.scratch.recycle(result);
+            tracing::trace!(
+                "tile {:?}: input {:.1} ms, network {:.1} ms, output {:.1} ms",
+                tile.buffer,
+                (t1 - t0).as_secs_f64() * 1e3,
+                (t2 - t1).as_secs_f64() * 1e3,
+                t2.elapsed().as_secs_f64() * 1e3
+            );
         }
         Ok(out)
     }
@@ -230,22 +243,29 @@ impl UnetFilter {
     fn tile_input(&self, planes: &[(&Plane, Processing)], tile: &Tile, scale: f32) -> Blocked {
         let [x0, y0, x1, y1] = tile.buffer;
         let (tw, th) = (x1 - x0, y1 - y0);
-        let channels = 3 * planes.len();
-        let mut planar = vec![0.0f32; channels * tw * th];
-        planar
-            .par_chunks_mut(tw * th)
+        let mut m = Blocked::bordered_in(&self.scratch, 3 * planes.len(), th, tw);
+        let (rs, bs) = (m.row_stride(), m.block_stride());
+        m.data_mut()
+            .par_chunks_mut(bs)
             .enumerate()
-            .for_each(|(c, dst)| {
-                let (plane, proc_) = planes[c / 3];
-                let src = plane.channel(c % 3);
-                let (fw, fh) = (plane.width(), plane.height());
-                for y in y0..y1.min(fh) {
-                    for x in x0..x1.min(fw) {
-                        dst[(y - y0) * tw + x - x0] = proc_.input(src[y * fw + x], scale);
+            .for_each(|(b, block)| {
+                block.fill(0.0);
+                for lane in 0..LANES {
+                    let c = b * LANES + lane;
+                    let Some(&(plane, proc_)) = planes.get(c / 3) else {
+                        break;
+                    };
+                    let src = plane.channel(c % 3);
+                    let (fw, fh) = (plane.width(), plane.height());
+                    for y in y0..y1.min(fh) {
+                        let row = &mut block[(y - y0 + 1) * rs..];
+                        for x in x0..x1.min(fw) {
+                            row[(x - x0 + 1) * LANES + lane] = proc_.input(src[y * fw + x], scale);
+                        }
                     }
                 }
             });
-        Blocked::from_planar(&planar, channels, th, tw)
+        m
     }
 
     /// Copies a tile's core from the network's output into the frame, mapped back to linear.
@@ -268,36 +288,57 @@ impl UnetFilter {
         }
     }
 
-    /// The network on one processed tile (sides multiples of 16): its 3 output channels.
+    /// The network on one processed tile (sides multiples of 16): its 3 output channels. Every
+    /// map it makes comes from and goes back to the filter's scratch, except the result.
     pub fn forward(&self, input: Blocked) -> Blocked {
-        let steps = self.config.layers.steps();
+        let scratch = &self.scratch;
         let mut pools: Vec<Blocked> = Vec::new();
+        // the previous step's output, when it is neither the input nor a kept pool
         let mut x: Option<Blocked> = None;
-        for (step, conv) in steps.iter().zip(&self.convs) {
-            // the previous step's output: a pooling's is the last kept pool
-            let prev = match (&x, pools.last()) {
-                (Some(x), _) => x,
-                (None, Some(p)) => p,
-                (None, None) => &input,
-            };
-            let y = match step.skip {
-                None => conv.run(&[prev]),
-                Some(Skip::Input) => conv.run(&[prev, &input]),
-                Some(Skip::Pool(n)) => conv.run(&[prev, &pools[n - 1]]),
-            };
-            x = Some(match step.after {
-                After::Nothing => y,
-                After::Pool => {
-                    let p = y.max_pool();
-                    drop(y);
-                    pools.push(p);
-                    x = None;
-                    continue;
+        for (step, conv) in self.config.layers.steps().iter().zip(&self.convs) {
+            let started = std::time::Instant::now();
+            let y = {
+                let prev = match (&x, pools.last()) {
+                    (Some(x), _) => x,
+                    // right after a pooling, its output
+                    (None, Some(p)) => p,
+                    (None, None) => &input,
+                };
+                match step.skip {
+                    None => conv.run(&[prev], scratch),
+                    Some(Skip::Input) => conv.run(&[prev, &input], scratch),
+                    Some(Skip::Pool(n)) => conv.run(&[prev, &pools[n - 1]], scratch),
                 }
-                After::Upsample => y.upsample(),
-            });
+            };
+            tracing::trace!(
+                "{} at {}x{}: {:.1} ms",
+                step.conv,
+                y.width(),
+                y.height(),
+                started.elapsed().as_secs_f64() * 1e3
+            );
+            if let Some(old) = x.take() {
+                scratch.recycle(old);
+            }
+            x = match step.after {
+                After::Nothing => Some(y),
+                After::Pool => {
+                    pools.push(y.max_pool(scratch));
+                    scratch.recycle(y);
+                    None
+                }
+                After::Upsample => {
+                    let up = y.upsample(scratch);
+                    scratch.recycle(y);
+                    Some(up)
+                }
+            };
         }
-        x.expect("the network has steps")
+        for p in pools {
+            scratch.recycle(p);
+        }
+        scratch.recycle(input);
+        x.expect("the network ends with a convolution")
     }
 }
 

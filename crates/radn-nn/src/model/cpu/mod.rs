@@ -23,11 +23,11 @@ pub fn is_cpu_inference(device: &Device) -> bool {
 
 /// A raw pointer that rayon jobs may share; each job writes only its own disjoint elements.
 #[derive(Clone, Copy)]
-struct SendPtr(*mut f32);
+pub(crate) struct SendPtr(pub(crate) *mut f32);
 
 impl SendPtr {
     /// The pointer (a method, so closures capture the whole `Send` wrapper).
-    fn get(self) -> *mut f32 {
+    pub(crate) fn get(self) -> *mut f32 {
         self.0
     }
 }

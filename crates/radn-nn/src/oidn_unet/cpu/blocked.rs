@@ -8,6 +8,40 @@ use rayon::prelude::*;
 /// Channels per block: one AVX2 register of f32.
 pub const LANES: usize = 8;
 
+/// Storage of feature maps kept for reuse between layers, tiles and frames: a map's buffer goes
+/// back here when the network is done with it and serves the next map of the same size, so a
+/// frame does not fault in fresh pages for every layer (at 1080p the large U-Net's maps add up
+/// to several GB of first touches per frame). It holds at most what one tile needed at once
+/// per map size.
+#[derive(Default, Debug)]
+pub struct Scratch {
+    free: std::sync::Mutex<Vec<Vec<f32>>>,
+}
+
+impl Scratch {
+    /// A buffer of `len` floats: a kept one of that length (old contents), else a zeroed one.
+    fn take(&self, len: usize) -> (Vec<f32>, bool) {
+        let mut free = self.free.lock().expect("no panic while held");
+        match free.iter().position(|b| b.len() == len) {
+            Some(i) => (free.swap_remove(i), true),
+            None => (vec![0.0; len], false),
+        }
+    }
+
+    /// Keeps `map`'s buffer for a later map of its size.
+    pub fn recycle(&self, map: Blocked) {
+        self.free
+            .lock()
+            .expect("no panic while held")
+            .push(map.data);
+    }
+
+    /// Frees every kept buffer.
+    pub fn clear(&self) {
+        self.free.lock().expect("no panic while held").clear();
+    }
+}
+
 /// A feature map in channel blocks with a zero border.
 #[derive(Clone, Debug)]
 pub struct Blocked {
@@ -27,6 +61,41 @@ impl Blocked {
             width,
             data: vec![0.0; blocks * (height + 2) * (width + 2) * LANES],
         }
+    }
+
+    /// A map from `scratch` whose border is zero and whose interior (every lane of every block)
+    /// the caller overwrites whole.
+    pub fn bordered_in(scratch: &Scratch, channels: usize, height: usize, width: usize) -> Self {
+        let blocks = channels.div_ceil(LANES);
+        let (data, reused) = scratch.take(blocks * (height + 2) * (width + 2) * LANES);
+        let mut m = Self {
+            channels,
+            height,
+            width,
+            data,
+        };
+        if reused {
+            m.zero_border();
+        }
+        m
+    }
+
+    /// Zeroes the one-pixel border of every block.
+    fn zero_border(&mut self) {
+        let (rs, bs, w, h) = (
+            self.row_stride(),
+            self.block_stride(),
+            self.width,
+            self.height,
+        );
+        self.data.par_chunks_mut(bs).for_each(|block| {
+            block[..rs].fill(0.0);
+            block[(h + 1) * rs..].fill(0.0);
+            for y in 1..=h {
+                block[y * rs..y * rs + LANES].fill(0.0);
+                block[y * rs + (w + 1) * LANES..(y + 1) * rs].fill(0.0);
+            }
+        });
     }
 
     /// Real channels (the last block may be padded with zeros).
@@ -85,59 +154,55 @@ impl Blocked {
         self.data[o] = v;
     }
 
-    /// 2×2 max pooling with stride 2 (sizes must be even).
-    pub fn max_pool(&self) -> Blocked {
-        assert!(
-            self.height.is_multiple_of(2) && self.width.is_multiple_of(2),
-            "even sizes"
-        );
-        let mut out = Blocked::zeros(self.channels, self.height / 2, self.width / 2);
-        let (oh, ow) = (out.height, out.width);
-        let (ors, obs) = (out.row_stride(), out.block_stride());
-        let src = self;
+    /// A map of `channels` from `scratch` of `height × width`, each interior row written by
+    /// `row(block, y, lanes)` (the row's `width · LANES` floats), blocks in parallel.
+    fn rows_from(
+        scratch: &Scratch,
+        channels: usize,
+        (height, width): (usize, usize),
+        row: impl Fn(usize, usize, &mut [f32]) + Sync,
+    ) -> Blocked {
+        let mut out = Blocked::bordered_in(scratch, channels, height, width);
+        let (rs, bs) = (out.row_stride(), out.block_stride());
         out.data
-            .par_chunks_mut(obs)
+            .par_chunks_mut(bs)
             .enumerate()
             .for_each(|(b, block)| {
-                for y in 0..oh {
-                    let row = &mut block[(y + 1) * ors..(y + 2) * ors];
-                    let top = src.offset(b, 2 * y, 0);
-                    let bottom = src.offset(b, 2 * y + 1, 0);
-                    for x in 0..ow {
-                        for l in 0..LANES {
-                            let a = src.data[top + 2 * x * LANES + l];
-                            let b_ = src.data[top + (2 * x + 1) * LANES + l];
-                            let c = src.data[bottom + 2 * x * LANES + l];
-                            let d = src.data[bottom + (2 * x + 1) * LANES + l];
-                            row[(x + 1) * LANES + l] = a.max(b_).max(c.max(d));
-                        }
-                    }
+                for y in 0..height {
+                    row(b, y, &mut block[(y + 1) * rs + LANES..(y + 2) * rs - LANES]);
                 }
             });
         out
     }
 
-    /// Nearest-neighbour upsampling by 2.
-    pub fn upsample(&self) -> Blocked {
-        let mut out = Blocked::zeros(self.channels, self.height * 2, self.width * 2);
-        let (oh, ow) = (out.height, out.width);
-        let (ors, obs) = (out.row_stride(), out.block_stride());
-        let src = self;
-        out.data
-            .par_chunks_mut(obs)
-            .enumerate()
-            .for_each(|(b, block)| {
-                for y in 0..oh {
-                    let row = &mut block[(y + 1) * ors..(y + 2) * ors];
-                    let from = src.offset(b, y / 2, 0);
-                    for x in 0..ow {
-                        let s = from + (x / 2) * LANES;
-                        row[(x + 1) * LANES..(x + 2) * LANES]
-                            .copy_from_slice(&src.data[s..s + LANES]);
-                    }
+    /// 2×2 max pooling with stride 2 (sizes must be even), into a map from `scratch`.
+    pub fn max_pool(&self, scratch: &Scratch) -> Blocked {
+        assert!(
+            self.height.is_multiple_of(2) && self.width.is_multiple_of(2),
+            "even sizes"
+        );
+        let size = (self.height / 2, self.width / 2);
+        Self::rows_from(scratch, self.channels, size, |b, y, row| {
+            let top = &self.data[self.offset(b, 2 * y, 0)..];
+            let bottom = &self.data[self.offset(b, 2 * y + 1, 0)..];
+            for (x, px) in row.chunks_exact_mut(LANES).enumerate() {
+                for (l, v) in px.iter_mut().enumerate() {
+                    let (i, j) = (2 * x * LANES + l, (2 * x + 1) * LANES + l);
+                    *v = top[i].max(top[j]).max(bottom[i].max(bottom[j]));
                 }
-            });
-        out
+            }
+        })
+    }
+
+    /// Nearest-neighbour upsampling by 2, into a map from `scratch`.
+    pub fn upsample(&self, scratch: &Scratch) -> Blocked {
+        let size = (self.height * 2, self.width * 2);
+        Self::rows_from(scratch, self.channels, size, |b, y, row| {
+            let from = &self.data[self.offset(b, y / 2, 0)..];
+            for (x, px) in row.chunks_exact_mut(LANES).enumerate() {
+                px.copy_from_slice(&from[(x / 2) * LANES..(x / 2 + 1) * LANES]);
+            }
+        })
     }
 
     /// The map as planar `channels × height × width` floats (NCHW of one image).
@@ -185,7 +250,8 @@ mod tests {
             .collect();
         let m = Blocked::from_planar(&planar, c, h, w);
         assert_eq!(m.to_planar(), planar);
-        let p = m.max_pool();
+        let scratch = Scratch::default();
+        let p = m.max_pool(&scratch);
         for ch in 0..c {
             for y in 0..h / 2 {
                 for x in 0..w / 2 {
@@ -197,7 +263,11 @@ mod tests {
                 }
             }
         }
-        let u = p.upsample();
+        // a reused buffer, dirty: the border is still zeroed and the interior overwritten
+        let mut dirty = Blocked::zeros(c, h, w);
+        dirty.data_mut().fill(7.0);
+        scratch.recycle(dirty);
+        let u = p.upsample(&scratch);
         assert_eq!((u.height(), u.width()), (h, w));
         for ch in 0..c {
             for y in 0..h {

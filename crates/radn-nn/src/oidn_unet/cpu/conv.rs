@@ -15,7 +15,8 @@ use std::arch::x86_64::*;
 
 use rayon::prelude::*;
 
-use crate::oidn_unet::cpu::blocked::{Blocked, LANES};
+use crate::model::cpu::SendPtr;
+use crate::oidn_unet::cpu::blocked::{Blocked, Scratch, LANES};
 
 /// Floats of one packed weight tap (8 input lanes × 8 output lanes).
 const TAP: usize = LANES * LANES;
@@ -77,8 +78,8 @@ impl PackedConv {
         self.cout
     }
 
-    /// `relu(conv(concat(sources)) + bias)` into a new map of the sources' size.
-    pub fn run(&self, sources: &[&Blocked]) -> Blocked {
+    /// `relu(conv(concat(sources)) + bias)` into a map of the sources' size from `scratch`.
+    pub fn run(&self, sources: &[&Blocked], scratch: &Scratch) -> Blocked {
         let (h, w) = (sources[0].height(), sources[0].width());
         let blocks: usize = sources.iter().map(|s| s.blocks()).sum();
         assert_eq!(
@@ -86,7 +87,7 @@ impl PackedConv {
             "the sources' channels match the weights"
         );
         assert!(sources.iter().all(|s| s.height() == h && s.width() == w));
-        let mut out = Blocked::zeros(self.cout, h, w);
+        let mut out = Blocked::bordered_in(scratch, self.cout, h, w);
         // the input blocks in order, as (source, block within it)
         let ins: Vec<(&Blocked, usize)> = sources
             .iter()
@@ -122,18 +123,6 @@ impl PackedConv {
         out
     }
 }
-
-/// A raw output pointer shared by the jobs, each writing only its own elements.
-#[derive(Clone, Copy)]
-struct SendPtr(*mut f32);
-impl SendPtr {
-    fn get(self) -> *mut f32 {
-        self.0
-    }
-}
-// SAFETY: see `PackedConv::run`: the jobs' writes are disjoint.
-unsafe impl Send for SendPtr {}
-unsafe impl Sync for SendPtr {}
 
 /// One job: output row `y`, output blocks `ob` (and `ob + 1`).
 struct Task<'a> {
@@ -174,20 +163,20 @@ impl Task<'_> {
             let mut x = x0;
             if two {
                 while x + PX2 <= x1 {
-                    self.kernel::<2, PX2>(x);
+                    self.kernel_2x6(x);
                     x += PX2;
                 }
                 while x < x1 {
-                    self.kernel::<2, 1>(x);
+                    self.kernel::<2>(x);
                     x += 1;
                 }
             } else {
                 while x + PX1 <= x1 {
-                    self.kernel::<1, PX1>(x);
+                    self.kernel_1x12(x);
                     x += PX1;
                 }
                 while x < x1 {
-                    self.kernel::<1, 1>(x);
+                    self.kernel::<1>(x);
                     x += 1;
                 }
             }
@@ -197,21 +186,65 @@ impl Task<'_> {
         self.plain(x0, x1, if two { 2 } else { 1 });
     }
 
-    /// The micro-kernel: `OB` output blocks × `PX` pixels from column `x`.
+    /// The micro-kernel for one pixel at column `x` and `OB` output blocks (the columns left
+    /// over by the wide kernels).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
-    unsafe fn kernel<const OB: usize, const PX: usize>(&self, x: usize) {
+    unsafe fn kernel<const OB: usize>(&self, x: usize) {
         let c = self.conv;
-        let mut acc = [[_mm256_setzero_ps(); PX]; OB];
-        for (o, row) in acc.iter_mut().enumerate() {
-            let b = _mm256_loadu_ps(c.bias.as_ptr().add((self.ob + o) * LANES));
-            for a in row.iter_mut() {
-                *a = b;
-            }
+        let out = self
+            .dst
+            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
+        let mut acc = [_mm256_setzero_ps(); OB];
+        for (o, a) in acc.iter_mut().enumerate() {
+            *a = _mm256_loadu_ps(c.bias.as_ptr().add((self.ob + o) * LANES));
         }
         let wstride = c.in_blocks * 9 * TAP;
         for (ib, &(src, sb)) in self.ins.iter().enumerate() {
-            // padded row y (the row above the output row) at padded column x
+            let base = src
+                .data()
+                .as_ptr()
+                .add(sb * src.block_stride() + self.y * src.row_stride() + x * LANES);
+            let wb = c
+                .weights
+                .as_ptr()
+                .add(((self.ob * c.in_blocks) + ib) * 9 * TAP);
+            for tap in 0..9 {
+                let p = base.add((tap / 3) * src.row_stride() + (tap % 3) * LANES);
+                let wt = wb.add(tap * TAP);
+                for l in 0..LANES {
+                    let s = _mm256_broadcast_ss(&*p.add(l));
+                    for (o, a) in acc.iter_mut().enumerate() {
+                        let w = _mm256_loadu_ps(wt.add(o * wstride + l * LANES));
+                        *a = _mm256_fmadd_ps(w, s, *a);
+                    }
+                }
+            }
+        }
+        let zero = _mm256_setzero_ps();
+        for (o, a) in acc.iter().enumerate() {
+            _mm256_storeu_ps(out.add(o * self.bs), _mm256_max_ps(*a, zero));
+        }
+    }
+
+    /// The main micro-kernel: 2 output blocks × 6 pixels from column `x`, its 12
+    /// accumulators named so that they stay in registers (the compiler keeps an array of them
+    /// on the stack).
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn kernel_2x6(&self, x: usize) {
+        let c = self.conv;
+        let out = self
+            .dst
+            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
+        let o1 = out.add(self.bs);
+        let bias = |o: usize| _mm256_loadu_ps(c.bias.as_ptr().add((self.ob + o) * LANES));
+        let (a, b) = (bias(0), bias(1));
+        let (mut a0, mut a1, mut a2, mut a3, mut a4, mut a5) = (a, a, a, a, a, a);
+        let (mut b0, mut b1, mut b2, mut b3, mut b4, mut b5) = (b, b, b, b, b, b);
+        let wstride = c.in_blocks * 9 * TAP;
+        for ib in 0..self.ins.len() {
+            let (src, sb) = self.ins[ib];
             let base = src
                 .data()
                 .as_ptr()
@@ -221,35 +254,95 @@ impl Task<'_> {
                 .weights
                 .as_ptr()
                 .add(((self.ob * c.in_blocks) + ib) * 9 * TAP);
-            for ky in 0..3 {
-                for kx in 0..3 {
-                    let p = base.add(ky * rs + kx * LANES);
-                    let wt = wb.add((ky * 3 + kx) * TAP);
-                    for l in 0..LANES {
-                        let mut wv = [_mm256_setzero_ps(); OB];
-                        for (o, v) in wv.iter_mut().enumerate() {
-                            *v = _mm256_loadu_ps(wt.add(o * wstride + l * LANES));
-                        }
-                        // the accumulators are indexed [o][px]: registers, not an iterator's slots
-                        #[allow(clippy::needless_range_loop)]
-                        for px in 0..PX {
-                            let s = _mm256_broadcast_ss(&*p.add(px * LANES + l));
-                            for o in 0..OB {
-                                acc[o][px] = _mm256_fmadd_ps(wv[o], s, acc[o][px]);
-                            }
-                        }
+            for tap in 0..9 {
+                let p = base.add((tap / 3) * rs + (tap % 3) * LANES);
+                let wt = wb.add(tap * TAP);
+                for l in 0..LANES {
+                    let w0 = _mm256_loadu_ps(wt.add(l * LANES));
+                    let w1 = _mm256_loadu_ps(wt.add(wstride + l * LANES));
+                    macro_rules! px {
+                        ($i:expr, $a:ident, $b:ident) => {
+                            let s = _mm256_broadcast_ss(&*p.add($i * LANES + l));
+                            $a = _mm256_fmadd_ps(w0, s, $a);
+                            $b = _mm256_fmadd_ps(w1, s, $b);
+                        };
                     }
+                    px!(0, a0, b0);
+                    px!(1, a1, b1);
+                    px!(2, a2, b2);
+                    px!(3, a3, b3);
+                    px!(4, a4, b4);
+                    px!(5, a5, b5);
                 }
             }
         }
         let zero = _mm256_setzero_ps();
-        for (o, row) in acc.iter().enumerate() {
-            let out = self
-                .dst
-                .add((self.ob + o) * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
-            for (px, a) in row.iter().enumerate() {
-                _mm256_storeu_ps(out.add(px * LANES), _mm256_max_ps(*a, zero));
+        let st = |p: *mut f32, px: usize, v: __m256| {
+            _mm256_storeu_ps(p.add(px * LANES), _mm256_max_ps(v, zero));
+        };
+        for (px, v) in [a0, a1, a2, a3, a4, a5].into_iter().enumerate() {
+            st(out, px, v);
+        }
+        for (px, v) in [b0, b1, b2, b3, b4, b5].into_iter().enumerate() {
+            st(o1, px, v);
+        }
+    }
+
+    /// The micro-kernel for a single output block: 12 pixels from column `x`, accumulators
+    /// named as in [`Self::kernel_2x6`].
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma")]
+    unsafe fn kernel_1x12(&self, x: usize) {
+        let c = self.conv;
+        let out = self
+            .dst
+            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
+        let a = _mm256_loadu_ps(c.bias.as_ptr().add(self.ob * LANES));
+        let (mut a0, mut a1, mut a2, mut a3, mut a4, mut a5) = (a, a, a, a, a, a);
+        let (mut a6, mut a7, mut a8, mut a9, mut a10, mut a11) = (a, a, a, a, a, a);
+        for ib in 0..self.ins.len() {
+            let (src, sb) = self.ins[ib];
+            let base = src
+                .data()
+                .as_ptr()
+                .add(sb * src.block_stride() + self.y * src.row_stride() + x * LANES);
+            let rs = src.row_stride();
+            let wb = c
+                .weights
+                .as_ptr()
+                .add(((self.ob * c.in_blocks) + ib) * 9 * TAP);
+            for tap in 0..9 {
+                let p = base.add((tap / 3) * rs + (tap % 3) * LANES);
+                let wt = wb.add(tap * TAP);
+                for l in 0..LANES {
+                    let w = _mm256_loadu_ps(wt.add(l * LANES));
+                    macro_rules! px {
+                        ($i:expr, $a:ident) => {
+                            let s = _mm256_broadcast_ss(&*p.add($i * LANES + l));
+                            $a = _mm256_fmadd_ps(w, s, $a);
+                        };
+                    }
+                    px!(0, a0);
+                    px!(1, a1);
+                    px!(2, a2);
+                    px!(3, a3);
+                    px!(4, a4);
+                    px!(5, a5);
+                    px!(6, a6);
+                    px!(7, a7);
+                    px!(8, a8);
+                    px!(9, a9);
+                    px!(10, a10);
+                    px!(11, a11);
+                }
             }
+        }
+        let zero = _mm256_setzero_ps();
+        for (px, v) in [a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11]
+            .into_iter()
+            .enumerate()
+        {
+            _mm256_storeu_ps(out.add(px * LANES), _mm256_max_ps(v, zero));
         }
     }
 
@@ -358,7 +451,9 @@ mod tests {
                 at += p;
             }
             let packed = PackedConv::new(&weight, &bias, cout, &parts);
-            let got = packed.run(&sources.iter().collect::<Vec<_>>()).to_planar();
+            let got = packed
+                .run(&sources.iter().collect::<Vec<_>>(), &Scratch::default())
+                .to_planar();
             let worst = got
                 .iter()
                 .zip(&want)
@@ -376,7 +471,7 @@ mod tests {
         let (cin, cout, h, w) = (24, 24, 3, 17);
         let x = Blocked::from_planar(&values(cin * h * w, 4), cin, h, w);
         let packed = PackedConv::new(&values(cout * cin * 9, 5), &values(cout, 6), cout, &[cin]);
-        let fast = packed.run(&[&x]);
+        let fast = packed.run(&[&x], &Scratch::default());
         let mut slow = Blocked::zeros(cout, h, w);
         let ins = [(&x, 0), (&x, 1), (&x, 2)];
         let (rs, bs) = (slow.row_stride(), slow.block_stride());
