@@ -30,9 +30,13 @@ impl SpatialDenoiser {
 
     /// The prefiltered path: `albedo` and `normal` clean the auxiliaries, then `beauty` runs.
     pub fn prefiltered(beauty: UnetFilter, albedo: UnetFilter, normal: UnetFilter) -> Self {
+        let scratch = beauty.scratch();
         Self {
+            prefilters: Some((
+                albedo.with_scratch(scratch.clone()),
+                normal.with_scratch(scratch),
+            )),
             beauty,
-            prefilters: Some((albedo, normal)),
         }
     }
 

@@ -31,7 +31,7 @@ pub struct UnetFilter {
     config: UnetConfig,
     convs: Vec<PackedConv>,
     max_tile_pixels: usize,
-    scratch: Scratch,
+    scratch: std::sync::Arc<Scratch>,
 }
 
 /// What is wrong with a run's inputs.
@@ -84,7 +84,7 @@ impl UnetFilter {
             config,
             convs,
             max_tile_pixels: DEFAULT_MAX_TILE_PIXELS,
-            scratch: Scratch::default(),
+            scratch: Default::default(),
         }
     }
 
@@ -97,6 +97,18 @@ impl UnetFilter {
     pub fn with_max_tile_pixels(mut self, pixels: usize) -> Self {
         self.max_tile_pixels = pixels.max(ALIGNMENT * ALIGNMENT);
         self
+    }
+
+    /// Shares `scratch` with other filters that run one after another (a prefiltered frame's
+    /// three networks), so that they keep one set of feature maps, not three.
+    pub fn with_scratch(mut self, scratch: std::sync::Arc<Scratch>) -> Self {
+        self.scratch = scratch;
+        self
+    }
+
+    /// The filter's feature-map storage.
+    pub fn scratch(&self) -> std::sync::Arc<Scratch> {
+        self.scratch.clone()
     }
 
     /// The input scale OIDN's autoexposure gives `color` (1 for models that are not HDR).

@@ -100,8 +100,7 @@ pub struct Args {
     /// A model file instead of the built-in ones.
     #[arg(long, value_name = "FILE", help_heading = "Quality")]
     pub model: Option<PathBuf>,
-    /// With --method spatial: clean the albedo and normal with OIDN's large auxiliary U-Nets
-    /// and run its large clean-auxiliary beauty U-Net (OIDN-prefiltered's three networks).
+    /// With --method spatial: OIDN-prefiltered's three large U-Nets (albedo, normal, beauty).
     #[arg(long, help_heading = "Quality")]
     pub prefilter: bool,
     /// 1: as tuned; lower keeps more of the input.

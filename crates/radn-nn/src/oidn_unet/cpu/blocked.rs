@@ -9,21 +9,29 @@ use rayon::prelude::*;
 pub const LANES: usize = 8;
 
 /// Storage of feature maps kept for reuse between layers, tiles and frames: a map's buffer goes
-/// back here when the network is done with it and serves the next map of the same size, so a
-/// frame does not fault in fresh pages for every layer (at 1080p the large U-Net's maps add up
-/// to several GB of first touches per frame). It holds at most what one tile needed at once
-/// per map size.
+/// back here when the network is done with it and serves the next map that fits in it (the
+/// smallest that does), so a frame does not fault in fresh pages for every layer (at 1080p the
+/// large U-Net's maps add up to several GB of first touches per frame). It holds about the most
+/// one tile needed at once.
 #[derive(Default, Debug)]
 pub struct Scratch {
     free: std::sync::Mutex<Vec<Vec<f32>>>,
 }
 
 impl Scratch {
-    /// A buffer of `len` floats: a kept one of that length (old contents), else a zeroed one.
+    /// A buffer of `len` floats: the smallest kept one that holds them (old contents), else a
+    /// zeroed one.
     fn take(&self, len: usize) -> (Vec<f32>, bool) {
         let mut free = self.free.lock().expect("no panic while held");
-        match free.iter().position(|b| b.len() == len) {
-            Some(i) => (free.swap_remove(i), true),
+        let best = (0..free.len())
+            .filter(|&i| free[i].capacity() >= len)
+            .min_by_key(|&i| free[i].capacity());
+        match best {
+            Some(i) => {
+                let mut b = free.swap_remove(i);
+                b.resize(len, 0.0);
+                (b, true)
+            }
             None => (vec![0.0; len], false),
         }
     }
