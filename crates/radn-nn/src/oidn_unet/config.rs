@@ -304,6 +304,26 @@ impl UnetConfig {
         })
     }
 
+    /// Each convolution's sources' channels, in step order: the previous output's, then the
+    /// skip's where it concatenates one (how its weights split between the two).
+    pub fn conv_inputs(&self) -> Vec<Vec<usize>> {
+        let mut prev = self.input.channels();
+        let mut pools = Vec::new();
+        let mut out = Vec::new();
+        for (step, shape) in self.layers.steps().iter().zip(&self.convs) {
+            out.push(match step.skip {
+                None => vec![prev],
+                Some(Skip::Input) => vec![prev, self.input.channels()],
+                Some(Skip::Pool(n)) => vec![prev, pools[n - 1]],
+            });
+            if step.after == After::Pool {
+                pools.push(shape.cout);
+            }
+            prev = shape.cout;
+        }
+        out
+    }
+
     /// The number of weights and biases.
     pub fn parameters(&self) -> usize {
         self.convs.iter().map(|c| c.cout * (c.cin * 9 + 1)).sum()

@@ -60,26 +60,13 @@ impl UnetFilter {
     /// Packs `net`'s weights for the CPU.
     pub fn new(net: &OidnUnet) -> Self {
         let config = net.config().clone();
-        let mut convs = Vec::new();
-        let mut pools = Vec::new();
-        let mut prev = config.input.channels();
-        for (step, (shape, (w, b))) in config
-            .layers
-            .steps()
+        let convs = config
+            .conv_inputs()
             .iter()
-            .zip(config.convs.iter().zip(net.host_weights()))
-        {
-            let parts = match step.skip {
-                None => vec![prev],
-                Some(Skip::Input) => vec![prev, config.input.channels()],
-                Some(Skip::Pool(n)) => vec![prev, pools[n - 1]],
-            };
-            convs.push(PackedConv::new(&w, &b, shape.cout, &parts));
-            if step.after == After::Pool {
-                pools.push(shape.cout);
-            }
-            prev = shape.cout;
-        }
+            .zip(&config.convs)
+            .zip(net.host_weights())
+            .map(|((parts, shape), (w, b))| PackedConv::new(&w, &b, shape.cout, parts))
+            .collect();
         Self {
             config,
             convs,
