@@ -186,32 +186,46 @@ impl Task<'_> {
         self.plain(x0, x1, if two { 2 } else { 1 });
     }
 
+    /// Where the kernels read input block `ib`'s tap `tap` for the pixels from column `x` (8
+    /// lanes each), and that block and tap's packed weights for the task's first output block.
+    #[inline(always)]
+    unsafe fn tap(&self, ib: usize, tap: usize, x: usize) -> (*const f32, *const f32) {
+        let (src, sb) = self.ins[ib];
+        let (ky, kx) = (tap / 3, tap % 3);
+        let input = src
+            .data()
+            .as_ptr()
+            .add(sb * src.block_stride() + (self.y + ky) * src.row_stride() + (x + kx) * LANES);
+        let c = self.conv;
+        let weights = c
+            .weights
+            .as_ptr()
+            .add(((self.ob * c.in_blocks + ib) * 9 + tap) * TAP);
+        (input, weights)
+    }
+
+    /// The task's output at column `x` of its first output block.
+    #[inline(always)]
+    unsafe fn out(&self, x: usize) -> *mut f32 {
+        self.dst
+            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES)
+    }
+
     /// The micro-kernel for one pixel at column `x` and `OB` output blocks (the columns left
     /// over by the wide kernels).
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma")]
     unsafe fn kernel<const OB: usize>(&self, x: usize) {
         let c = self.conv;
-        let out = self
-            .dst
-            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
+        let out = self.out(x);
         let mut acc = [_mm256_setzero_ps(); OB];
         for (o, a) in acc.iter_mut().enumerate() {
             *a = _mm256_loadu_ps(c.bias.as_ptr().add((self.ob + o) * LANES));
         }
         let wstride = c.in_blocks * 9 * TAP;
-        for (ib, &(src, sb)) in self.ins.iter().enumerate() {
-            let base = src
-                .data()
-                .as_ptr()
-                .add(sb * src.block_stride() + self.y * src.row_stride() + x * LANES);
-            let wb = c
-                .weights
-                .as_ptr()
-                .add(((self.ob * c.in_blocks) + ib) * 9 * TAP);
+        for ib in 0..self.ins.len() {
             for tap in 0..9 {
-                let p = base.add((tap / 3) * src.row_stride() + (tap % 3) * LANES);
-                let wt = wb.add(tap * TAP);
+                let (p, wt) = self.tap(ib, tap, x);
                 for l in 0..LANES {
                     let s = _mm256_broadcast_ss(&*p.add(l));
                     for (o, a) in acc.iter_mut().enumerate() {
@@ -234,9 +248,7 @@ impl Task<'_> {
     #[target_feature(enable = "avx2,fma")]
     unsafe fn kernel_2x6(&self, x: usize) {
         let c = self.conv;
-        let out = self
-            .dst
-            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
+        let out = self.out(x);
         let o1 = out.add(self.bs);
         let bias = |o: usize| _mm256_loadu_ps(c.bias.as_ptr().add((self.ob + o) * LANES));
         let (a, b) = (bias(0), bias(1));
@@ -244,19 +256,8 @@ impl Task<'_> {
         let (mut b0, mut b1, mut b2, mut b3, mut b4, mut b5) = (b, b, b, b, b, b);
         let wstride = c.in_blocks * 9 * TAP;
         for ib in 0..self.ins.len() {
-            let (src, sb) = self.ins[ib];
-            let base = src
-                .data()
-                .as_ptr()
-                .add(sb * src.block_stride() + self.y * src.row_stride() + x * LANES);
-            let rs = src.row_stride();
-            let wb = c
-                .weights
-                .as_ptr()
-                .add(((self.ob * c.in_blocks) + ib) * 9 * TAP);
             for tap in 0..9 {
-                let p = base.add((tap / 3) * rs + (tap % 3) * LANES);
-                let wt = wb.add(tap * TAP);
+                let (p, wt) = self.tap(ib, tap, x);
                 for l in 0..LANES {
                     let w0 = _mm256_loadu_ps(wt.add(l * LANES));
                     let w1 = _mm256_loadu_ps(wt.add(wstride + l * LANES));
@@ -294,26 +295,13 @@ impl Task<'_> {
     #[target_feature(enable = "avx2,fma")]
     unsafe fn kernel_1x12(&self, x: usize) {
         let c = self.conv;
-        let out = self
-            .dst
-            .add(self.ob * self.bs + (self.y + 1) * self.rs + (x + 1) * LANES);
+        let out = self.out(x);
         let a = _mm256_loadu_ps(c.bias.as_ptr().add(self.ob * LANES));
         let (mut a0, mut a1, mut a2, mut a3, mut a4, mut a5) = (a, a, a, a, a, a);
         let (mut a6, mut a7, mut a8, mut a9, mut a10, mut a11) = (a, a, a, a, a, a);
         for ib in 0..self.ins.len() {
-            let (src, sb) = self.ins[ib];
-            let base = src
-                .data()
-                .as_ptr()
-                .add(sb * src.block_stride() + self.y * src.row_stride() + x * LANES);
-            let rs = src.row_stride();
-            let wb = c
-                .weights
-                .as_ptr()
-                .add(((self.ob * c.in_blocks) + ib) * 9 * TAP);
             for tap in 0..9 {
-                let p = base.add((tap / 3) * rs + (tap % 3) * LANES);
-                let wt = wb.add(tap * TAP);
+                let (p, wt) = self.tap(ib, tap, x);
                 for l in 0..LANES {
                     let w = _mm256_loadu_ps(wt.add(l * LANES));
                     macro_rules! px {
