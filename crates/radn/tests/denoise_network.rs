@@ -5,8 +5,8 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{assert_aovs_sum_to_beauty, beauty_rgb, radn, radn_ok, sample, with_aovs};
-use radn_core::io::exr_file::{ExrFile, SampleKind};
+use common::{assert_aovs_sum_to_beauty, beauty_rgb, radn, radn_ok, sample, tall, with_aovs};
+use radn_core::io::exr_file::ExrFile;
 use radn_nn::burn::tensor::Device;
 use radn_nn::model::config::InputConfig;
 use radn_nn::{Denoiser, NetConfig};
@@ -186,39 +186,6 @@ fn utilization_table_sums_to_one_and_writes_heat_maps() {
         let png = std::fs::read(maps.join(format!("centre_share_{f:04}.png"))).unwrap();
         assert_eq!(&png[1..4], b"PNG");
     }
-}
-
-/// The sample stacked three times vertically (176×300), with the AOVs and alpha of
-/// [`with_aovs`]: tall enough that bands of 64 rows and the network's halo leave most of a
-/// frame unread per band.
-fn tall(dir: &Path) -> String {
-    let src = with_aovs(dir, 0.25);
-    for f in 3..=7 {
-        let file = ExrFile::read(src.replace("####", &format!("{f:04}"))).unwrap();
-        let (w, h) = (file.width(), file.height());
-        let channels = file
-            .channel_names()
-            .into_iter()
-            .map(|name| {
-                let v = file.channel_f32(&name).unwrap();
-                let mut t = Vec::with_capacity(3 * v.len());
-                for k in 0..3 {
-                    // the copies are shifted sideways so no two bands look alike
-                    for y in 0..h {
-                        let row = &v[y * w..(y + 1) * w];
-                        t.extend(row[k * 11..].iter().chain(&row[..k * 11]));
-                    }
-                }
-                (name, t)
-            })
-            .collect();
-        let p = dir.join(format!("tall/frame_{f:04}.exr"));
-        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
-        ExrFile::from_channels(&p, w, 3 * h, channels, SampleKind::F32)
-            .write_atomic(&p)
-            .unwrap();
-    }
-    format!("{}/tall/frame_####.exr", dir.display())
 }
 
 #[test]

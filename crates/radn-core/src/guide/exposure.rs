@@ -54,28 +54,41 @@ impl ExposureBins {
         i
     }
 
-    /// Adds the RGB beauty `band`, whose first row is frame row `y0`.
+    /// Adds the rows of `band`, whose first row is frame row `y0`: an RGB image, or any other
+    /// as the grey of its channels' mean (how a one-channel AOV is given to an RGB network).
     pub fn add_rows(&mut self, y0: usize, band: &Plane) {
         assert_eq!(band.width(), self.width, "a band is as wide as its frame");
-        assert!(band.channels() >= 3, "an RGB beauty");
-        let (r, g, b) = (band.channel(0), band.channel(1), band.channel(2));
+        let channels = band.channels();
+        assert!(channels >= 1, "an image has channels");
         let col_bin: Vec<usize> = (0..self.width)
             .map(|x| Self::bin_of(x, self.width, self.bins_w))
             .collect();
+        let c = |v: f32| {
+            if v.is_nan() {
+                0.0
+            } else {
+                v.clamp(0.0, f32::MAX) as f64
+            }
+        };
+        let luminance =
+            |r: f32, g: f32, b: f32| 0.212671 * c(r) + 0.715160 * c(g) + 0.072169 * c(b);
         for y in 0..band.height() {
             let row_bin = Self::bin_of(y0 + y, self.height, self.bins_h);
             let sums = &mut self.sums[row_bin * self.bins_w..(row_bin + 1) * self.bins_w];
             let base = y * self.width;
-            for x in 0..self.width {
-                let i = base + x;
-                let c = |v: f32| {
-                    if v.is_nan() {
-                        0.0
-                    } else {
-                        v.clamp(0.0, f32::MAX) as f64
-                    }
-                };
-                sums[col_bin[x]] += 0.212671 * c(r[i]) + 0.715160 * c(g[i]) + 0.072169 * c(b[i]);
+            if channels == 3 {
+                let (r, g, b) = (band.channel(0), band.channel(1), band.channel(2));
+                for x in 0..self.width {
+                    let i = base + x;
+                    sums[col_bin[x]] += luminance(r[i], g[i], b[i]);
+                }
+            } else {
+                for x in 0..self.width {
+                    let i = base + x;
+                    let grey =
+                        (0..channels).map(|k| band.channel(k)[i]).sum::<f32>() / channels as f32;
+                    sums[col_bin[x]] += luminance(grey, grey, grey);
+                }
             }
         }
     }

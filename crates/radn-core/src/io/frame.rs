@@ -172,6 +172,13 @@ impl Requirements {
         depth: false,
         motion: false,
     };
+    /// What a per-frame network needs: albedo and normal (no motion).
+    pub const AUXILIARIES: Requirements = Requirements {
+        albedo: true,
+        normal: true,
+        depth: false,
+        motion: false,
+    };
     /// What warping and the denoisers need: albedo, normal and motion (depth used when present).
     pub const DENOISE: Requirements = Requirements {
         albedo: true,
@@ -222,6 +229,17 @@ impl FrameReader {
             aovs: Vec::new(),
             guide: GuideLayer::None,
         }
+    }
+
+    /// The reader for a method that denoises each frame alone: it needs `require` and reads
+    /// no motion, depth or variance (a frame's band then holds only what the method uses).
+    pub fn per_frame(mut self, require: Requirements) -> Self {
+        self.require = require;
+        self.mapping.motion_prev = None;
+        self.mapping.motion_next = None;
+        self.mapping.depth = None;
+        self.mapping.variance = None;
+        self
     }
 
     /// Reads one file into a frame, and hands back the decoded file for writing results into.

@@ -10,6 +10,7 @@ use std::ops::Range;
 use std::path::Path;
 
 use crate::error::Result;
+use crate::guide::exposure::ExposureBins;
 use crate::image::noise_level::NoiseLevelHistogram;
 use crate::image::plane::Plane;
 use crate::image::stats::{
@@ -249,6 +250,9 @@ pub struct FrameStats {
     pub repaired: usize,
     /// The histogram its noise level is taken from ([`crate::image::noise_level`]).
     pub noise: NoiseLevelHistogram,
+    /// OIDN's autoexposure bins of its beauty, then of each AOV in the reader's order: a
+    /// network that runs at OIDN's exposure runs every band at the whole frame's.
+    pub autoexposure: Vec<ExposureBins>,
     /// Its first row: the channel names a result is written into, without reading the file
     /// again.
     pub names: Frame,
@@ -272,6 +276,10 @@ impl FrameStats {
             luminance: (0.0, 0),
             repaired: 0,
             noise: NoiseLevelHistogram::default(),
+            autoexposure: std::iter::once(&first.color)
+                .chain(first.aovs.iter().map(|a| &a.plane))
+                .map(|p| ExposureBins::new(p.width(), height))
+                .collect(),
             names: first.rows(0..1),
         };
         let mut next = Some(first);
@@ -289,6 +297,10 @@ impl FrameStats {
             stats
                 .noise
                 .add_rows(&band.color, band.albedo.as_ref(), 0..band.height());
+            let images = std::iter::once(&band.color).chain(band.aovs.iter().map(|a| &a.plane));
+            for (bins, image) in stats.autoexposure.iter_mut().zip(images) {
+                bins.add_rows(y0, image);
+            }
             each_band(y0, &band)?;
         }
         Ok(stats)
@@ -303,6 +315,12 @@ impl FrameStats {
     /// ([`crate::image::stats::log_average_luminance`]).
     pub fn exposure(&self) -> f32 {
         log_average_luminance(self.luminance)
+    }
+
+    /// OIDN's autoexposure of the frame's beauty (`image` 0) or of its AOV `image` − 1
+    /// ([`ExposureBins::exposure`]).
+    pub fn autoexposure(&self, image: usize) -> f32 {
+        self.autoexposure[image].exposure()
     }
 
     /// The frame's noise level ([`crate::image::noise_level`]; `None` for a black frame).

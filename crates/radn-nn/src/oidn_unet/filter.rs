@@ -10,7 +10,7 @@ use rayon::prelude::*;
 
 use crate::oidn_unet::config::{After, Input, Skip, UnetConfig, ALIGNMENT};
 use crate::oidn_unet::cpu::blocked::{Blocked, Scratch, LANES};
-use crate::oidn_unet::cpu::conv::PackedConv;
+use crate::oidn_unet::cpu::conv::{Fused, PackedConv};
 use crate::oidn_unet::transfer::{Processing, Transfer, AUX_ALBEDO, AUX_NORMAL};
 use crate::oidn_unet::OidnUnet;
 
@@ -100,12 +100,19 @@ impl UnetFilter {
 
     /// The input scale OIDN's autoexposure gives `color` (1 for models that are not HDR).
     pub fn autoexposure(&self, color: &Plane) -> f32 {
-        if !matches!(self.config.input, Input::Beauty { hdr: true, .. }) {
-            return 1.0;
-        }
         let mut bins = ExposureBins::new(color.width(), color.height());
         bins.add_rows(0, color);
-        bins.exposure()
+        self.exposure_of(&bins)
+    }
+
+    /// The input scale for a frame whose autoexposure bins are `bins` (gathered band by band,
+    /// so that every band runs at the whole frame's exposure); 1 for models that are not HDR.
+    pub fn exposure_of(&self, bins: &ExposureBins) -> f32 {
+        if matches!(self.config.input, Input::Beauty { hdr: true, .. }) {
+            bins.exposure()
+        } else {
+            1.0
+        }
     }
 
     /// How the model's main input is processed.
@@ -173,6 +180,16 @@ impl UnetFilter {
     /// Denoises one frame at input scale `scale` (OIDN's autoexposure when `None`): the model's
     /// output as an RGB (XYZ for normals) plane of the frame's size.
     pub fn run(&self, images: &UnetImages, scale: Option<f32>) -> Result<Plane, FilterError> {
+        self.run_within(images, scale, self.max_tile_pixels)
+    }
+
+    /// [`UnetFilter::run`] in tiles of at most `budget` pixels ([`UnetFilter::tiles_within`]).
+    pub fn run_within(
+        &self,
+        images: &UnetImages,
+        scale: Option<f32>,
+        budget: usize,
+    ) -> Result<Plane, FilterError> {
         let planes = self.planes(images)?;
         let (w, h) = (planes[0].0.width(), planes[0].0.height());
         let scale = match scale {
@@ -183,7 +200,13 @@ impl UnetFilter {
             },
         };
         let mut out = Plane::zeros(w, h, 3);
-        for tile in self.tiles(w, h) {
+        // largest first, so that the smaller tiles' maps fit in its buffers
+        let mut tiles = self.tiles_within(w, h, budget);
+        tiles.sort_by_key(|t| std::cmp::Reverse(t.pixels()));
+        if let Some(t) = tiles.first() {
+            self.scratch.prepare_for(t.pixels());
+        }
+        for tile in tiles {
             let t0 = std::time::Instant::now();
             let input = self.tile_input(&planes, &tile, scale);
             let t1 = std::time::Instant::now();
@@ -191,6 +214,11 @@ impl UnetFilter {
             let t2 = std::time::Instant::now();
             self.tile_output(&result, &tile, scale, &mut out);
             self.scratch.recycle(result);
+            tracing::debug!(
+                "tile {:?}: {} MB of feature maps kept",
+                tile.buffer,
+                self.scratch.kept_bytes() >> 20
+            );
             tracing::trace!(
                 "tile {:?}: input {:.1} ms, network {:.1} ms, output {:.1} ms",
                 tile.buffer,
@@ -199,43 +227,60 @@ impl UnetFilter {
                 t2.elapsed().as_secs_f64() * 1e3
             );
         }
+        self.scratch.trim();
         Ok(out)
     }
 
-    /// The tiles that cover a `w × h` frame.
+    /// The tiles that cover a `w × h` frame within the filter's tile budget.
     pub fn tiles(&self, w: usize, h: usize) -> Vec<Tile> {
+        self.tiles_within(w, h, self.max_tile_pixels)
+    }
+
+    /// The tiles that cover a `w × h` frame, each of at most `budget` pixels where the
+    /// overlap allows: the whole padded frame when it fits, else whichever of square tiles,
+    /// tiles as tall as the frame (a band) or as wide as it computes the fewest pixels.
+    pub fn tiles_within(&self, w: usize, h: usize, budget: usize) -> Vec<Tile> {
         let (pw, ph) = (w.next_multiple_of(ALIGNMENT), h.next_multiple_of(ALIGNMENT));
         let ov = self.config.layers.overlap();
-        // one tile where the padded frame fits the budget, else square cores as large as the
-        // budget allows once their overlap is added
-        let (cx, cy) = if pw * ph <= self.max_tile_pixels {
-            (pw, ph)
-        } else {
-            let side = (self.max_tile_pixels as f64).sqrt() as usize;
-            let core = (side.saturating_sub(2 * ov) / ALIGNMENT * ALIGNMENT).max(ALIGNMENT);
-            (core, core)
-        };
-        let spans = |n: usize, padded: usize, core: usize| -> Vec<(usize, usize, usize, usize)> {
-            (0..padded)
-                .step_by(core)
-                .map(|a| {
-                    let b = (a + core).min(padded);
-                    (a.saturating_sub(ov), a, b.min(n), (b + ov).min(padded))
+        let grid = |v: usize| (v / ALIGNMENT * ALIGNMENT).max(ALIGNMENT);
+        let layout = |cx: usize, cy: usize| -> Vec<Tile> {
+            let spans = |n: usize, padded: usize, core: usize| {
+                (0..padded)
+                    .step_by(core)
+                    .map(|a| {
+                        let b = (a + core).min(padded);
+                        (a.saturating_sub(ov), a, b.min(n), (b + ov).min(padded))
+                    })
+                    .filter(|&(_, a, b, _)| a < b)
+                    .collect::<Vec<_>>()
+            };
+            let (xs, ys) = (spans(w, pw, cx), spans(h, ph, cy));
+            ys.iter()
+                .flat_map(|&(y0, ya, yb, y1)| {
+                    xs.iter().map(move |&(x0, xa, xb, x1)| Tile {
+                        buffer: [x0, y0, x1, y1],
+                        core: [xa, ya, xb, yb],
+                    })
                 })
-                .filter(|&(_, a, b, _)| a < b)
                 .collect()
         };
-        let (xs, ys) = (spans(w, pw, cx), spans(h, ph, cy));
-        let mut tiles = Vec::new();
-        for &(y0, ya, yb, y1) in &ys {
-            for &(x0, xa, xb, x1) in &xs {
-                tiles.push(Tile {
-                    buffer: [x0, y0, x1, y1],
-                    core: [xa, ya, xb, yb],
-                });
-            }
+        if pw * ph <= budget {
+            return layout(pw, ph);
         }
-        tiles
+        let side = (budget as f64).sqrt() as usize;
+        let square = grid(side.saturating_sub(2 * ov));
+        let mut candidates = vec![layout(square, square)];
+        if ph * (2 * ov + ALIGNMENT) <= budget {
+            candidates.push(layout(grid((budget / ph).saturating_sub(2 * ov)), ph));
+        }
+        if pw * (2 * ov + ALIGNMENT) <= budget {
+            candidates.push(layout(pw, grid((budget / pw).saturating_sub(2 * ov))));
+        }
+        let area = |tiles: &Vec<Tile>| -> usize { tiles.iter().map(Tile::pixels).sum() };
+        candidates
+            .into_iter()
+            .min_by_key(area)
+            .expect("square tiles are a candidate")
     }
 
     /// A tile's processed input: the frame's values inside the frame, zeros in its padding.
@@ -294,8 +339,14 @@ impl UnetFilter {
         let mut pools: Vec<Blocked> = Vec::new();
         // the previous step's output, when it is neither the input nor a kept pool
         let mut x: Option<Blocked> = None;
+        // whether the previous step upsampled: the next convolution reads its output so
+        let mut upsampled = false;
         for (step, conv) in self.config.layers.steps().iter().zip(&self.convs) {
             let started = std::time::Instant::now();
+            let fused = Fused {
+                upsample_first: upsampled,
+                pool: step.after == After::Pool,
+            };
             let y = {
                 let prev = match (&x, pools.last()) {
                     (Some(x), _) => x,
@@ -304,13 +355,13 @@ impl UnetFilter {
                     (None, None) => &input,
                 };
                 match step.skip {
-                    None => conv.run(&[prev], scratch),
-                    Some(Skip::Input) => conv.run(&[prev, &input], scratch),
-                    Some(Skip::Pool(n)) => conv.run(&[prev, &pools[n - 1]], scratch),
+                    None => conv.run_fused(&[prev], scratch, fused),
+                    Some(Skip::Input) => conv.run_fused(&[prev, &input], scratch, fused),
+                    Some(Skip::Pool(n)) => conv.run_fused(&[prev, &pools[n - 1]], scratch, fused),
                 }
             };
             tracing::trace!(
-                "{} at {}x{}: {:.1} ms",
+                "{} to {}x{}: {:.1} ms",
                 step.conv,
                 y.width(),
                 y.height(),
@@ -319,17 +370,12 @@ impl UnetFilter {
             if let Some(old) = x.take() {
                 scratch.recycle(old);
             }
+            upsampled = step.after == After::Upsample;
             x = match step.after {
-                After::Nothing => Some(y),
+                After::Nothing | After::Upsample => Some(y),
                 After::Pool => {
-                    pools.push(y.max_pool(scratch));
-                    scratch.recycle(y);
+                    pools.push(y);
                     None
-                }
-                After::Upsample => {
-                    let up = y.upsample(scratch);
-                    scratch.recycle(y);
-                    Some(up)
                 }
             };
         }
@@ -349,4 +395,11 @@ pub struct Tile {
     pub buffer: [usize; 4],
     /// The region whose output is kept.
     pub core: [usize; 4],
+}
+
+impl Tile {
+    /// Pixels of its buffer.
+    pub fn pixels(&self) -> usize {
+        (self.buffer[2] - self.buffer[0]) * (self.buffer[3] - self.buffer[1])
+    }
 }

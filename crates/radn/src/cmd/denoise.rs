@@ -202,6 +202,7 @@ pub fn run(a: Args) -> Result<()> {
             }
             let d = crate::model::spatial(a.model.as_deref(), a.prefilter)?;
             println!("radn: spatial path, per frame: {}", d.summary());
+            reader = reader.per_frame(Requirements::AUXILIARIES);
             (Box::new(d), None, None)
         }
         Method::Network => {

@@ -129,3 +129,36 @@ pub fn oidn_or_skip(threads: usize) -> Option<radn_core::guide::OidnGuides> {
         Err(e) => panic!("RADN_REQUIRE_OIDN is set but OIDN does not open: {e}"),
     }
 }
+
+/// The sample stacked three times vertically (176×300), with the AOVs and alpha of
+/// [`with_aovs`]: tall enough that bands of 64 rows and the network's halo leave most of a
+/// frame unread per band.
+pub fn tall(dir: &Path) -> String {
+    let src = with_aovs(dir, 0.25);
+    for f in 3..=7 {
+        let file = ExrFile::read(src.replace("####", &format!("{f:04}"))).unwrap();
+        let (w, h) = (file.width(), file.height());
+        let channels = file
+            .channel_names()
+            .into_iter()
+            .map(|name| {
+                let v = file.channel_f32(&name).unwrap();
+                let mut t = Vec::with_capacity(3 * v.len());
+                for k in 0..3 {
+                    // the copies are shifted sideways so no two bands look alike
+                    for y in 0..h {
+                        let row = &v[y * w..(y + 1) * w];
+                        t.extend(row[k * 11..].iter().chain(&row[..k * 11]));
+                    }
+                }
+                (name, t)
+            })
+            .collect();
+        let p = dir.join(format!("tall/frame_{f:04}.exr"));
+        std::fs::create_dir_all(p.parent().unwrap()).unwrap();
+        ExrFile::from_channels(&p, w, 3 * h, channels, SampleKind::F32)
+            .write_atomic(&p)
+            .unwrap();
+    }
+    format!("{}/tall/frame_####.exr", dir.display())
+}

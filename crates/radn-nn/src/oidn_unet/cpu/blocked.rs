@@ -15,7 +15,10 @@ pub const LANES: usize = 8;
 /// one tile needed at once.
 #[derive(Default, Debug)]
 pub struct Scratch {
-    free: std::sync::Mutex<Vec<Vec<f32>>>,
+    /// The kept buffers, each with whether it served a map since the last [`Scratch::trim`].
+    free: std::sync::Mutex<Vec<(Vec<f32>, bool)>>,
+    /// The largest tile (in pixels) its buffers were made for.
+    largest: std::sync::atomic::AtomicUsize,
 }
 
 impl Scratch {
@@ -24,11 +27,11 @@ impl Scratch {
     fn take(&self, len: usize) -> (Vec<f32>, bool) {
         let mut free = self.free.lock().expect("no panic while held");
         let best = (0..free.len())
-            .filter(|&i| free[i].capacity() >= len)
-            .min_by_key(|&i| free[i].capacity());
+            .filter(|&i| free[i].0.capacity() >= len)
+            .min_by_key(|&i| free[i].0.capacity());
         match best {
             Some(i) => {
-                let mut b = free.swap_remove(i);
+                let (mut b, _) = free.swap_remove(i);
                 b.resize(len, 0.0);
                 (b, true)
             }
@@ -41,7 +44,35 @@ impl Scratch {
         self.free
             .lock()
             .expect("no panic while held")
-            .push(map.data);
+            .push((map.data, true));
+    }
+
+    /// Frees the kept buffers that served no map since the last trim (called after each run
+    /// of a network over a frame or band, so a buffer no network used is not kept).
+    pub fn trim(&self) {
+        let mut free = self.free.lock().expect("no panic while held");
+        free.retain(|(_, used)| *used);
+        for (_, used) in free.iter_mut() {
+            *used = false;
+        }
+    }
+
+    /// Readies it for tiles of at most `pixels`: buffers made for smaller tiles are dropped
+    /// when a larger one comes, so that the larger tile's maps are each made to measure
+    /// (rather than some of them in buffers a little too small to serve the next tile's).
+    /// Tiles run largest first.
+    pub fn prepare_for(&self, pixels: usize) {
+        use std::sync::atomic::Ordering;
+        if pixels > self.largest.load(Ordering::Relaxed) {
+            self.clear();
+            self.largest.store(pixels, Ordering::Relaxed);
+        }
+    }
+
+    /// Bytes of the buffers it keeps (all of its maps, between runs).
+    pub fn kept_bytes(&self) -> usize {
+        let free = self.free.lock().expect("no panic while held");
+        free.iter().map(|(b, _)| b.capacity() * 4).sum()
     }
 
     /// Frees every kept buffer.
