@@ -7,10 +7,12 @@
 pub mod config;
 pub mod cpu;
 pub mod denoiser;
+pub mod feature_warp;
 pub mod filter;
 pub mod import;
 pub mod library;
 pub mod store;
+pub mod temporal;
 pub mod transfer;
 pub mod tza;
 
@@ -118,32 +120,98 @@ impl OidnUnet {
     /// The network on processed inputs `[batch, channels, h, w]` (sides multiples of 16),
     /// through burn's operations: the output before OIDN's output processing.
     pub fn forward(&self, input: Tensor<4>) -> Tensor<4> {
-        let mut pools: Vec<Tensor<4>> = Vec::new();
-        let mut x = input.clone();
-        for (step, conv) in self.config.layers.steps().iter().zip(&self.layers.convs) {
+        self.decode(self.encode(input))
+    }
+
+    /// Steps of the encoder: up to the first convolution whose output is upsampled (the
+    /// bottleneck).
+    fn encoder_steps(&self) -> usize {
+        self.config
+            .layers
+            .steps()
+            .iter()
+            .position(|s| s.after == After::Upsample)
+            .expect("a U-Net upsamples")
+            + 1
+    }
+
+    /// Channels of each of [`OidnUnet::encode`]'s levels, finest first.
+    pub fn level_channels(&self) -> Vec<usize> {
+        let n = self.encoder_steps();
+        let steps = &self.config.layers.steps()[..n];
+        let mut channels = vec![self.config.input.channels()];
+        for (step, conv) in steps.iter().zip(&self.config.convs) {
+            if step.after == After::Pool {
+                channels.push(conv.cout);
+            }
+        }
+        channels.pop();
+        channels.push(self.config.convs[n - 1].cout);
+        channels
+    }
+
+    /// The encoder on processed inputs: what the decoder reads of one frame, at every scale.
+    pub fn encode(&self, input: Tensor<4>) -> EncoderLevels {
+        let n = self.encoder_steps();
+        let mut levels = vec![input.clone()];
+        let mut x = input;
+        for (step, conv) in self.config.layers.steps()[..n]
+            .iter()
+            .zip(&self.layers.convs)
+        {
+            let y = relu(conv.forward(x));
+            x = match step.after {
+                After::Pool => {
+                    let p = max_pool2d(y, MaxPoolOptions::new([2, 2]));
+                    levels.push(p.clone());
+                    p
+                }
+                After::Nothing | After::Upsample => y,
+            };
+        }
+        // the last pooling feeds only the bottleneck; the bottleneck's output replaces it
+        levels.pop();
+        levels.push(x);
+        EncoderLevels(levels)
+    }
+
+    /// The decoder on one frame's (or a window's mixed) encoder levels.
+    pub fn decode(&self, levels: EncoderLevels) -> Tensor<4> {
+        let n = self.encoder_steps();
+        let mut levels = levels.0;
+        let bottleneck = levels.pop().expect("the bottleneck level");
+        let mut x = upsample(bottleneck);
+        for (step, conv) in self.config.layers.steps()[n..]
+            .iter()
+            .zip(&self.layers.convs[n..])
+        {
             let src = match step.skip {
                 None => x,
-                Some(Skip::Input) => Tensor::cat(vec![x, input.clone()], 1),
-                Some(Skip::Pool(n)) => Tensor::cat(vec![x, pools[n - 1].clone()], 1),
+                Some(Skip::Input) => Tensor::cat(vec![x, levels[0].clone()], 1),
+                Some(Skip::Pool(k)) => Tensor::cat(vec![x, levels[k].clone()], 1),
             };
             let y = relu(conv.forward(src));
             x = match step.after {
                 After::Nothing => y,
-                After::Pool => {
-                    let p = max_pool2d(y, MaxPoolOptions::new([2, 2]));
-                    pools.push(p.clone());
-                    p
-                }
-                After::Upsample => {
-                    let [_, _, h, w] = y.dims();
-                    interpolate(
-                        y,
-                        InterpolateOptions::new(InterpolateMode::Nearest)
-                            .with_output_size([2 * h, 2 * w]),
-                    )
-                }
+                After::Pool => unreachable!("the decoder does not pool"),
+                After::Upsample => upsample(y),
             };
         }
         x
     }
+}
+
+/// What the U-Net's decoder reads of a frame, finest first: level 0 is the processed input
+/// (full resolution), level k the k-th pooled encoder map (1/2^k), and the last the
+/// bottleneck's output (1/16). Each is `[batch, channels, h, w]`.
+#[derive(Clone, Debug)]
+pub struct EncoderLevels(pub Vec<Tensor<4>>);
+
+/// Nearest-neighbour upsampling by 2.
+fn upsample(y: Tensor<4>) -> Tensor<4> {
+    let [_, _, h, w] = y.dims();
+    interpolate(
+        y,
+        InterpolateOptions::new(InterpolateMode::Nearest).with_output_size([2 * h, 2 * w]),
+    )
 }

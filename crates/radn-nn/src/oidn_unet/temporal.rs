@@ -1,0 +1,294 @@
+//! The paper's conversion of a spatial network into a spatio-temporal one (§3), applied to
+//! OIDN's U-Net: every frame of a window goes through the U-Net's encoder once; at the levels
+//! the configuration names, the window's features are warped to the centre frame
+//! ([`feature_warp`](super::feature_warp)) and a Robust Average block
+//! ([`RobustAverage`]) blends them; the decoder then runs once, on the centre frame's blended
+//! levels. Each blend enters through a per-channel gate that starts at zero, so the converted
+//! network, before training, is exactly the per-frame U-Net on the centre frame, and
+//! training starts from OIDN's quality.
+
+use burn::module::{Module, Param};
+use burn::tensor::{Device, Tensor};
+use serde::{Deserialize, Serialize};
+
+use crate::model::ra_block::RobustAverage;
+use crate::oidn_unet::feature_warp::{to_centre, WindowMotion};
+use crate::oidn_unet::{EncoderLevels, OidnUnet};
+
+/// Where the converted network blends its window: the window's length and the encoder levels
+/// (0: the processed input, k: 1/2^k, the last: the bottleneck) that get a Robust Average block.
+#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+pub struct TemporalConfig {
+    /// Frames per window (odd; the paper's 5).
+    pub frames: usize,
+    /// Encoder levels with a Robust Average block, in increasing order.
+    pub levels: Vec<usize>,
+}
+
+/// One level's temporal blend: a Robust Average block over the window's warped features and
+/// the per-channel gate through which its result enters the centre frame's.
+#[derive(Module, Debug)]
+pub struct LevelBlend {
+    ra: RobustAverage,
+    gate: Param<Tensor<1>>,
+}
+
+impl LevelBlend {
+    /// A blend of `channels` features over `frames` frames, closed (the identity).
+    pub fn new(channels: usize, frames: usize, device: &Device) -> Self {
+        Self {
+            ra: RobustAverage::new(channels, frames, device),
+            gate: Param::from_tensor(Tensor::zeros([channels], device)),
+        }
+    }
+
+    /// The centre frame's features (`[batch, c, h, w]`) with the block's result over the
+    /// window's `warped` features (`[batch · frames, c, h, w]`) let in through the gate.
+    fn forward(&self, centre: Tensor<4>, warped: Tensor<4>, frames: usize) -> Tensor<4> {
+        let [bt, c, h, w] = warped.dims();
+        let averaged: Tensor<4> = self
+            .ra
+            .forward(warped)
+            .reshape([bt / frames, frames, c, h, w])
+            .narrow(1, frames / 2, 1)
+            .reshape([bt / frames, c, h, w]);
+        let gate = self.gate.val().reshape([1, c, 1, 1]);
+        centre.clone() + (averaged - centre) * gate
+    }
+}
+
+/// The trainable temporal layers, one blend per configured level.
+#[derive(Module, Debug)]
+pub struct TemporalLayers {
+    blends: Vec<LevelBlend>,
+}
+
+/// OIDN's U-Net converted into a spatio-temporal network.
+#[derive(Debug)]
+pub struct TemporalUnet {
+    /// The U-Net (its encoder runs per frame, its decoder per window).
+    pub unet: OidnUnet,
+    /// The temporal blends.
+    pub temporal: TemporalLayers,
+    config: TemporalConfig,
+}
+
+/// What is wrong with a temporal configuration for a U-Net.
+#[derive(Debug, Clone, PartialEq, Eq, thiserror::Error)]
+pub enum TemporalError {
+    /// The window is not odd and at least 3 frames long.
+    #[error("a window of {0} frames: it must be odd and at least 3")]
+    Frames(usize),
+    /// A level the encoder does not have, or levels out of order.
+    #[error("levels {levels:?}: the encoder has levels 0 to {last}, each named once in order")]
+    Levels {
+        /// The levels asked for.
+        levels: Vec<usize>,
+        /// The encoder's deepest level.
+        last: usize,
+    },
+}
+
+impl TemporalUnet {
+    /// Converts `unet`: a closed blend at each of `config.levels`, so that the result equals
+    /// the per-frame U-Net on the centre frame until training opens them.
+    pub fn convert(
+        unet: OidnUnet,
+        config: TemporalConfig,
+        device: &Device,
+    ) -> Result<Self, TemporalError> {
+        if config.frames < 3 || config.frames.is_multiple_of(2) {
+            return Err(TemporalError::Frames(config.frames));
+        }
+        let channels = unet.level_channels();
+        let last = channels.len() - 1;
+        if config.levels.iter().any(|&l| l > last) || !config.levels.windows(2).all(|p| p[0] < p[1])
+        {
+            return Err(TemporalError::Levels {
+                levels: config.levels.clone(),
+                last,
+            });
+        }
+        let blends = config
+            .levels
+            .iter()
+            .map(|&l| LevelBlend::new(channels[l], config.frames, device))
+            .collect();
+        Ok(Self {
+            unet,
+            temporal: TemporalLayers { blends },
+            config,
+        })
+    }
+
+    /// Where the network blends its window.
+    pub fn config(&self) -> &TemporalConfig {
+        &self.config
+    }
+
+    /// The per-frame encoder on processed frames `[n, channels, h, w]` (sides multiples of 16).
+    pub fn encode(&self, frames: Tensor<4>) -> EncoderLevels {
+        self.unet.encode(frames)
+    }
+
+    /// A window's encoder levels (`[batch · frames, …]`, frames consecutive within each batch
+    /// item) blended into its centre frame's (`[batch, …]`), each configured level's features
+    /// first warped to the centre by `motion` (already aligned windows: `None`).
+    pub fn blend(&self, levels: EncoderLevels, motion: Option<&WindowMotion>) -> EncoderLevels {
+        let t = self.config.frames;
+        let mut blends = self
+            .config
+            .levels
+            .iter()
+            .zip(&self.temporal.blends)
+            .peekable();
+        let out = levels
+            .0
+            .into_iter()
+            .enumerate()
+            .map(|(l, f)| {
+                let [bt, c, h, w] = f.dims();
+                let centre: Tensor<4> = f
+                    .clone()
+                    .reshape([bt / t, t, c, h, w])
+                    .narrow(1, t / 2, 1)
+                    .reshape([bt / t, c, h, w]);
+                match blends.next_if(|(&level, _)| level == l) {
+                    Some((_, blend)) => {
+                        let warped = match motion {
+                            Some(m) => to_centre(f, t, &m.at_level(l)),
+                            None => f,
+                        };
+                        blend.forward(centre, warped, t)
+                    }
+                    None => centre,
+                }
+            })
+            .collect();
+        EncoderLevels(out)
+    }
+
+    /// The network on a window of processed frames `[batch · frames, channels, h, w]`: the
+    /// centre frame's output `[batch, 3, h, w]` before OIDN's output processing.
+    pub fn forward(&self, window: Tensor<4>, motion: Option<&WindowMotion>) -> Tensor<4> {
+        self.unet.decode(self.blend(self.encode(window), motion))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use burn::tensor::TensorData;
+
+    /// OIDN's standard U-Net with its trained weights (shipped in `models/`).
+    fn unet(device: &Device) -> OidnUnet {
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
+        crate::oidn_unet::store::load(&path, device).unwrap()
+    }
+
+    fn window(t: usize, h: usize, w: usize, device: &Device) -> Tensor<4> {
+        let n = t * 9 * h * w;
+        Tensor::from_data(
+            TensorData::new(
+                (0..n)
+                    .map(|i| ((i * 7919) % 997) as f32 / 997.0)
+                    .collect::<Vec<_>>(),
+                [t, 9, h, w],
+            ),
+            device,
+        )
+    }
+
+    #[test]
+    fn the_converted_network_is_the_per_frame_unet_until_its_gates_open() {
+        let device = Device::flex();
+        let (t, h, w) = (5, 32, 48);
+        let x = window(t, h, w, &device);
+        let centre = x.clone().narrow(0, t / 2, 1);
+        let net = TemporalUnet::convert(
+            unet(&device),
+            TemporalConfig {
+                frames: t,
+                levels: vec![1, 2, 3, 4],
+            },
+            &device,
+        )
+        .unwrap();
+        let want = net
+            .unet
+            .forward(centre)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        // with motion: warping moves the side frames, and still nothing passes a closed gate
+        let motion = WindowMotion {
+            offsets: Tensor::full([t, 2, h, w], 1.25, &device),
+            confidence: Tensor::full([t, 1, h, w], 0.8, &device),
+        };
+        for m in [None, Some(&motion)] {
+            let got = net
+                .forward(x.clone(), m)
+                .into_data()
+                .try_to_vec::<f32>()
+                .unwrap();
+            assert_eq!(got, want, "motion {:?}", m.is_some());
+        }
+        // open gates change the result
+        let mut open = net;
+        for b in &mut open.temporal.blends {
+            let c = b.gate.dims()[0];
+            b.gate = Param::from_tensor(Tensor::full([c], 0.5, &device));
+        }
+        let moved = open
+            .forward(x, Some(&motion))
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let diff = moved
+            .iter()
+            .zip(&want)
+            .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+        assert!(diff > 1e-4, "{diff}");
+    }
+
+    #[test]
+    fn bad_configurations_are_refused() {
+        let device = Device::flex();
+        let bad = |frames, levels: Vec<usize>| {
+            TemporalUnet::convert(unet(&device), TemporalConfig { frames, levels }, &device)
+                .unwrap_err()
+                .to_string()
+        };
+        assert!(bad(4, vec![1]).contains("odd"));
+        assert!(bad(5, vec![5]).contains("levels 0 to 4"));
+        assert!(bad(5, vec![2, 1]).contains("in order"));
+    }
+
+    #[cfg(feature = "autodiff")]
+    #[test]
+    fn the_gates_get_a_gradient_at_the_identity() {
+        // the gates start at zero, where the blocks' own weights get no gradient; the gates'
+        // gradient is the blocks' result against the centre's, so training opens them
+        let device = Device::flex().autodiff();
+        let (t, h, w) = (3, 32, 32);
+        let x = window(t, h, w, &device);
+        let net = TemporalUnet::convert(
+            unet(&device),
+            TemporalConfig {
+                frames: t,
+                levels: vec![2, 4],
+            },
+            &device,
+        )
+        .unwrap();
+        let target = x.clone().narrow(0, 0, 1).narrow(1, 0, 3);
+        let loss = (net.forward(x, None) - target).powi_scalar(2).mean();
+        let grads = loss.backward();
+        for b in &net.temporal.blends {
+            let g = b.gate.val().grad(&grads).expect("the gate is trained");
+            let g = g.into_data().try_to_vec::<f32>().unwrap();
+            assert!(g.iter().any(|v| v.abs() > 1e-9), "{g:?}");
+        }
+    }
+}
