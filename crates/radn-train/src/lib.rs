@@ -19,6 +19,7 @@ pub mod layer_stats;
 pub mod loss;
 pub mod objective;
 pub mod trainer;
+pub mod unet_finetune;
 pub mod vgg;
 
 /// The error type training shares with inference.

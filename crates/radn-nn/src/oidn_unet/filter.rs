@@ -11,7 +11,7 @@ use rayon::prelude::*;
 use crate::oidn_unet::config::{After, Input, Skip, UnetConfig, ALIGNMENT};
 use crate::oidn_unet::cpu::blocked::{Blocked, Scratch, LANES};
 use crate::oidn_unet::cpu::conv::{Fused, PackedConv};
-use crate::oidn_unet::transfer::{Processing, Transfer, AUX_ALBEDO, AUX_NORMAL};
+use crate::oidn_unet::transfer::{Processing, Transfer, AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
 use crate::oidn_unet::OidnUnet;
 
 /// The images one run reads: what the model's [`Input`] names, each an RGB (XYZ) plane of the
@@ -118,11 +118,7 @@ impl UnetFilter {
     /// How the model's main input is processed.
     fn main_processing(&self) -> Processing {
         match self.config.input {
-            Input::Beauty { hdr: true, .. } => Processing {
-                transfer: Transfer::Pu,
-                signed: false,
-                hdr: true,
-            },
+            Input::Beauty { hdr: true, .. } => HDR_BEAUTY,
             Input::Beauty { hdr: false, .. } | Input::Albedo => Processing {
                 transfer: Transfer::Srgb,
                 signed: false,

@@ -32,9 +32,21 @@ pub struct UnetLayers {
     convs: Vec<Conv2d>,
 }
 
+impl UnetLayers {
+    /// The layers with the first `steps` convolutions not trained (a fine-tune that keeps
+    /// the encoder as OIDN trained it).
+    pub fn frozen_below(mut self, steps: usize) -> Self {
+        for conv in self.convs.iter_mut().take(steps) {
+            *conv = conv.clone().no_grad();
+        }
+        self
+    }
+}
+
 /// An imported OIDN U-Net: its configuration and its layers.
-#[derive(Debug)]
+#[derive(Module, Debug)]
 pub struct OidnUnet {
+    #[module(skip)]
     config: UnetConfig,
     /// The layers (burn parameters).
     pub layers: UnetLayers,
@@ -125,7 +137,7 @@ impl OidnUnet {
 
     /// Steps of the encoder: up to the first convolution whose output is upsampled (the
     /// bottleneck).
-    fn encoder_steps(&self) -> usize {
+    pub fn encoder_steps(&self) -> usize {
         self.config
             .layers
             .steps()

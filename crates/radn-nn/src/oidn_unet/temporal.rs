@@ -64,12 +64,13 @@ pub struct TemporalLayers {
 }
 
 /// OIDN's U-Net converted into a spatio-temporal network.
-#[derive(Debug)]
+#[derive(Module, Debug)]
 pub struct TemporalUnet {
     /// The U-Net (its encoder runs per frame, its decoder per window).
     pub unet: OidnUnet,
     /// The temporal blends.
     pub temporal: TemporalLayers,
+    #[module(skip)]
     config: TemporalConfig,
 }
 

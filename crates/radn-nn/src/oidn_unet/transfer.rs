@@ -154,6 +154,13 @@ impl Processing {
     }
 }
 
+/// An HDR beauty: scaled by the input scale, through the PU curve.
+pub const HDR_BEAUTY: Processing = Processing {
+    transfer: Transfer::Pu,
+    signed: false,
+    hdr: true,
+};
+
 /// Albedo beside a beauty: clamped to [0, 1], no transfer.
 pub const AUX_ALBEDO: Processing = Processing {
     transfer: Transfer::Linear,

@@ -2,8 +2,9 @@
 
 use std::path::PathBuf;
 
-use anyhow::{Context, Result};
+use anyhow::{bail, Context, Result};
 use radn_train::trainer::{TrainConfig, Trainer};
+use radn_train::unet_finetune::{Finetune, FinetuneConfig};
 
 /// Arguments of `radn train`.
 #[derive(clap::Args)]
@@ -32,12 +33,22 @@ pub struct Args {
     /// scripts/build-cuda). Checkpoints and model files are the same on both.
     #[arg(long, default_value = "cpu", value_name = "cpu|cuda[:N]")]
     pub device: radn_nn::device::ComputeDevice,
+    /// Stop after this many minutes, at a checkpoint (continue with --resume). Fine-tunes of
+    /// OIDN's U-Net (`network = "oidn-temporal"`) only.
+    #[arg(long, value_name = "MINUTES")]
+    pub budget: Option<f64>,
 }
 
 /// Trains.
 pub fn run(a: Args) -> Result<()> {
     let text = std::fs::read_to_string(&a.config)
         .with_context(|| format!("cannot read '{}'", a.config.display()))?;
+    if FinetuneConfig::is_finetune(&text) {
+        return finetune(&a, &text);
+    }
+    if a.budget.is_some() {
+        bail!("--budget: only fine-tunes of OIDN's U-Net stop at a time budget");
+    }
     let mut config =
         TrainConfig::parse(&text).with_context(|| format!("'{}'", a.config.display()))?;
     let cwd = std::env::current_dir().context("cannot read the working folder")?;
@@ -83,6 +94,53 @@ pub fn run(a: Args) -> Result<()> {
         "done: {} (best: {})",
         a.out.join("model.safetensors").display(),
         a.out.join("best.safetensors").display()
+    );
+    Ok(())
+}
+
+/// `radn train` on a fine-tune of OIDN's U-Net converted into a spatio-temporal network.
+fn finetune(a: &Args, text: &str) -> Result<()> {
+    let mut config =
+        FinetuneConfig::parse(text).with_context(|| format!("'{}'", a.config.display()))?;
+    let cwd = std::env::current_dir().context("cannot read the working folder")?;
+    let base = a.config.parent().map(PathBuf::from).unwrap_or_default();
+    if let Some(t) = &a.train {
+        config.train = cwd.join(t).display().to_string();
+    }
+    if let Some(v) = &a.val {
+        config.val = cwd.join(v).display().to_string();
+    }
+    if let Some(n) = a.steps {
+        config.steps = n;
+    }
+    let device = a.device.open_for_training()?;
+    let mut run = Finetune::new(config.clone(), &base, &a.out, a.resume, &device)?;
+    println!(
+        "fine-tuning OIDN's U-Net with Robust Average blocks at levels {:?} on {} from step {} to {}",
+        config.levels, a.device, run.state.step, config.steps
+    );
+    let pb = indicatif::ProgressBar::new(config.steps as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps  ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_position(run.state.step as u64);
+    let budget = a
+        .budget
+        .map(|m| std::time::Duration::from_secs_f64(m * 60.0));
+    run.run(budget, |step, loss| {
+        pb.set_position(step as u64);
+        pb.set_message(format!("loss {loss:.4}"));
+    })?;
+    pb.finish_and_clear();
+    println!(
+        "stopped at step {} of {}: validation loss {:.5} (the converted network before training: {:.5}); checkpoint in {}",
+        run.state.step,
+        config.steps,
+        run.state.best_val.unwrap_or(f64::NAN),
+        run.state.start_val.unwrap_or(f64::NAN),
+        a.out.display()
     );
     Ok(())
 }

@@ -1,0 +1,451 @@
+//! Fine-tuning OIDN's U-Net converted into a spatio-temporal network ([`TemporalUnet`]) on
+//! prepared tiles (`radn prepare`): each step reads windows at a random noise level,
+//! processes them as OIDN does (the beauty at the centre tile's OIDN autoexposure through the
+//! PU curve, albedo clamped, normals mapped to [0, 1]), and fits the centre frame's output to
+//! an independent render of it (Noise2Noise pairs: a cleaner level where there is one), in the
+//! network's PU space, where OIDN trained it. Runs are resumable and stop at a time budget:
+//! checkpoints hold the weights (Burnpack, with parameter ids), the optimizer state and the
+//! step, committed by `state.json`, and every step's batch is drawn from the seed and the step
+//! alone, so a resumed run continues exactly as an uninterrupted one.
+
+use std::path::{Path, PathBuf};
+use std::time::{Duration, Instant};
+
+use burn::module::Module;
+use burn::optim::{AdamConfig, GradientsParams};
+use burn::store::ModuleSnapshot;
+use burn::tensor::{Device, Tensor, TensorData};
+use serde::{Deserialize, Serialize};
+
+use radn_core::guide::exposure::ExposureBins;
+use radn_core::io::output::{write_atomically_with, write_bytes_atomically};
+use radn_core::Plane;
+use radn_nn::oidn_unet::store;
+use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet};
+use radn_nn::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
+use radn_nn::{NnError, Result};
+
+use crate::checkpoint::{checkpoint_files, remove_other_checkpoints};
+use crate::dataset::{SplitMix, Tile, TileDataset};
+
+/// Which of the network's layers a fine-tune trains (the rest keep OIDN's weights).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum TrainedLayers {
+    /// The temporal blends only.
+    #[default]
+    Temporal,
+    /// The temporal blends and the U-Net's decoder.
+    TemporalAndDecoder,
+    /// Everything.
+    All,
+}
+
+/// A fine-tune's settings (TOML; paths relative to the file).
+#[derive(Clone, Debug, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FinetuneConfig {
+    /// What is trained: `"oidn-temporal"` (what tells `radn train` this file is a fine-tune).
+    pub network: String,
+    /// The imported OIDN U-Net to convert (`radn model import-oidn`).
+    pub init: String,
+    /// Training tiles.
+    pub train: String,
+    /// Validation tiles.
+    pub val: String,
+    /// Encoder levels that get a Robust Average block.
+    pub levels: Vec<usize>,
+    /// Which layers are trained.
+    #[serde(default)]
+    pub trained: TrainedLayers,
+    /// Windows per step.
+    pub batch: usize,
+    /// Crop side (a multiple of 16, at most the tile side).
+    pub crop: usize,
+    /// Steps in all (over every resumed run).
+    pub steps: usize,
+    /// Adam's learning rate.
+    pub lr: f64,
+    /// Seed of the batches and crops.
+    pub seed: u64,
+    /// Steps between validations (and checkpoints).
+    pub validate_every: usize,
+    /// Validation tiles (the first ones of the set).
+    pub val_tiles: usize,
+}
+
+/// The `network` of a fine-tune of OIDN's converted U-Net.
+pub const NETWORK: &str = "oidn-temporal";
+
+impl FinetuneConfig {
+    /// Whether a TOML configuration is a fine-tune of OIDN's U-Net (its `network`).
+    pub fn is_finetune(text: &str) -> bool {
+        toml::from_str::<toml::Table>(text)
+            .ok()
+            .and_then(|t| {
+                t.get("network")
+                    .and_then(|v| v.as_str())
+                    .map(|v| v == NETWORK)
+            })
+            .unwrap_or(false)
+    }
+
+    /// Parses and checks a TOML configuration.
+    pub fn parse(text: &str) -> Result<Self> {
+        let c: Self = toml::from_str(text).map_err(|e| NnError::Config(e.to_string()))?;
+        if c.network != NETWORK {
+            return Err(NnError::Config(format!(
+                "network = \"{}\": a fine-tune's network is \"{NETWORK}\"",
+                c.network
+            )));
+        }
+        if c.crop == 0 || !c.crop.is_multiple_of(16) {
+            return Err(NnError::Config(format!(
+                "crop = {}: the U-Net needs a multiple of 16",
+                c.crop
+            )));
+        }
+        if c.batch == 0 || c.validate_every == 0 {
+            return Err(NnError::Config(
+                "batch and validate_every must be positive".into(),
+            ));
+        }
+        Ok(c)
+    }
+}
+
+/// A fine-tune's progress, written last at each checkpoint (its commit).
+#[derive(Clone, Debug, Default, Serialize, Deserialize)]
+pub struct FinetuneState {
+    /// Steps completed.
+    pub step: usize,
+    /// Validation loss of the converted network before training (OIDN's U-Net).
+    pub start_val: Option<f64>,
+    /// Best validation loss so far.
+    pub best_val: Option<f64>,
+}
+
+/// A fine-tuning run.
+pub struct Finetune {
+    config: FinetuneConfig,
+    out: PathBuf,
+    device: Device,
+    net: TemporalUnet,
+    optim: burn::optim::ModuleOptimizer,
+    /// Its progress.
+    pub state: FinetuneState,
+    train: TileDataset,
+    val: TileDataset,
+}
+
+/// A batch as tensors: processed windows `[B · T, 9, S, S]` and targets in PU `[B, 3, S, S]`.
+struct Batch {
+    window: Tensor<4>,
+    target: Tensor<4>,
+}
+
+impl Finetune {
+    /// Opens a run in `out` (resuming its last checkpoint when `resume` and there is one)
+    /// from `config` (paths relative to `base`).
+    pub fn new(
+        config: FinetuneConfig,
+        base: &Path,
+        out: &Path,
+        resume: bool,
+        device: &Device,
+    ) -> Result<Self> {
+        std::fs::create_dir_all(out).map_err(|e| NnError::Save {
+            path: out.to_path_buf(),
+            detail: e.to_string(),
+        })?;
+        let train = TileDataset::open(&base.join(&config.train))?;
+        let val = TileDataset::open(&base.join(&config.val))?;
+        if train.manifest.tile < config.crop {
+            return Err(NnError::Config(format!(
+                "crop = {} is larger than the tiles ({})",
+                config.crop, train.manifest.tile
+            )));
+        }
+        let unet = store::load(&base.join(&config.init), device)?;
+        // the blocks' initial weights from the seed (a resumed run then loads its own)
+        device.seed(config.seed);
+        let temporal = TemporalConfig {
+            frames: train.manifest.frames,
+            levels: config.levels.clone(),
+        };
+        let net = TemporalUnet::convert(unet, temporal, device)
+            .map_err(|e| NnError::Config(e.to_string()))?;
+        let state_path = out.join("state.json");
+        let mut run = Self {
+            optim: AdamConfig::new().init(),
+            state: FinetuneState::default(),
+            config,
+            out: out.to_path_buf(),
+            device: device.clone(),
+            net,
+            train,
+            val,
+        };
+        if resume && state_path.exists() {
+            let load = |path: &Path, e: String| NnError::Load {
+                path: path.to_path_buf(),
+                detail: e,
+            };
+            let text = std::fs::read_to_string(&state_path)
+                .map_err(|e| load(&state_path, e.to_string()))?;
+            run.state =
+                serde_json::from_str(&text).map_err(|e| load(&state_path, e.to_string()))?;
+            let [weights, optimizer] = checkpoint_files(out, run.state.step);
+            let mut bp = burn::store::BurnpackStore::from_file(&weights);
+            let r = run
+                .net
+                .load_from(&mut bp)
+                .map_err(|e| load(&weights, format!("{e:?}")))?;
+            if !r.missing.is_empty() || !r.errors.is_empty() {
+                return Err(load(
+                    &weights,
+                    "the checkpoint does not match the configured network".into(),
+                ));
+            }
+            run.optim = AdamConfig::new()
+                .init()
+                .load(&optimizer)
+                .map_err(|e| load(&optimizer, format!("{e:?}")))?;
+            remove_other_checkpoints(out, run.state.step);
+        }
+        run.freeze();
+        Ok(run)
+    }
+
+    /// The network being trained.
+    pub fn net(&self) -> &TemporalUnet {
+        &self.net
+    }
+
+    /// Marks the layers the configuration leaves at OIDN's weights as not trained.
+    fn freeze(&mut self) {
+        let encoder = self.net.unet.encoder_steps();
+        let layers = self.net.unet.layers.clone();
+        self.net.unet.layers = match self.config.trained {
+            TrainedLayers::All => layers,
+            TrainedLayers::TemporalAndDecoder => layers.frozen_below(encoder),
+            TrainedLayers::Temporal => layers.no_grad(),
+        };
+    }
+
+    /// The tiles, levels and crop corner of step `step`'s batch, from the seed and the step.
+    fn plan(&self, step: usize) -> Vec<(usize, usize, usize, usize, usize)> {
+        let mut rng =
+            SplitMix(self.config.seed ^ (step as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
+        let room = self.train.manifest.tile - self.config.crop;
+        (0..self.config.batch)
+            .map(|_| {
+                let i = rng.below(self.train.len());
+                let input = rng.below(3);
+                let (x0, y0) = (rng.below(room + 1), rng.below(room + 1));
+                (i, input, target_for(input), x0, y0)
+            })
+            .collect()
+    }
+
+    /// One optimizer step; returns the training loss.
+    pub fn step(&mut self) -> Result<f64> {
+        let plan = self.plan(self.state.step);
+        let b = batch(&self.train, &plan, self.config.crop, &self.device)?;
+        let loss = (self.net.forward(b.window, None) - b.target).abs().mean();
+        let value = loss.clone().into_scalar::<f32>() as f64;
+        if !value.is_finite() {
+            return Err(NnError::Config(format!(
+                "the loss became {value} at step {}",
+                self.state.step
+            )));
+        }
+        let grads = GradientsParams::from_grads(loss.backward(), &self.net);
+        // modules hold tensor handles: the clone is cheap
+        self.net = self.optim.step(self.config.lr, self.net.clone(), grads);
+        self.state.step += 1;
+        Ok(value)
+    }
+
+    /// The mean validation loss (PU space) on the first `val_tiles` tiles, input `low`
+    /// against the cleanest target the tile has.
+    pub fn validate(&self) -> Result<f64> {
+        // off the autodiff graph
+        let plain = self.device.clone().without_autodiff();
+        let net = self.net.valid();
+        let n = self.config.val_tiles.min(self.val.len()).max(1);
+        let mut sum = 0.0;
+        for i in 0..n {
+            let b = batch(&self.val, &[(i, 2, 0, 0, 0)], self.config.crop, &plain)?;
+            let out = net.forward(b.window, None);
+            sum += (out - b.target).abs().mean().into_scalar::<f32>() as f64;
+        }
+        Ok(sum / n as f64)
+    }
+
+    /// Saves a checkpoint: weights and optimizer files named by the step, then `state.json`
+    /// (the commit), then the older checkpoint's files are removed.
+    pub fn checkpoint(&mut self) -> Result<()> {
+        let save = |path: &Path, e: String| NnError::Save {
+            path: path.to_path_buf(),
+            detail: e,
+        };
+        let [weights, optimizer] = checkpoint_files(&self.out, self.state.step);
+        write_atomically_with(&weights, |_, tmp| {
+            let mut bp = burn::store::BurnpackStore::from_file(tmp).overwrite(true);
+            self.net
+                .save_into(&mut bp)
+                .map_err(|e| save(tmp, format!("{e:?}")))
+        })?;
+        write_atomically_with(&optimizer, |_, tmp| {
+            self.optim
+                .save(tmp)
+                .map_err(|e| save(tmp, format!("{e:?}")))
+        })?;
+        let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
+        write_bytes_atomically(&self.out.join("state.json"), st.as_bytes())?;
+        remove_other_checkpoints(&self.out, self.state.step);
+        Ok(())
+    }
+
+    /// Trains to the configured steps or until `budget` has passed (then checkpoints and
+    /// returns: run again to continue), validating and checkpointing every
+    /// `validate_every` steps; `on_step` sees each step's number and loss.
+    pub fn run(
+        &mut self,
+        budget: Option<Duration>,
+        mut on_step: impl FnMut(usize, f64),
+    ) -> Result<()> {
+        let started = Instant::now();
+        if self.state.start_val.is_none() {
+            let v = self.validate()?;
+            self.state.start_val = Some(v);
+            self.state.best_val = Some(v);
+            self.log("val", v)?;
+        }
+        while self.state.step < self.config.steps {
+            let loss = self.step()?;
+            on_step(self.state.step, loss);
+            self.log("train", loss)?;
+            let due = self.state.step.is_multiple_of(self.config.validate_every)
+                || self.state.step == self.config.steps;
+            let out_of_time = budget.is_some_and(|b| started.elapsed() >= b);
+            if due {
+                let v = self.validate()?;
+                self.log("val", v)?;
+                if self.state.best_val.is_none_or(|b| v < b) {
+                    self.state.best_val = Some(v);
+                }
+            }
+            if due || out_of_time {
+                self.checkpoint()?;
+            }
+            if out_of_time {
+                break;
+            }
+        }
+        Ok(())
+    }
+
+    /// Appends a row to `metrics.csv`.
+    fn log(&self, kind: &str, loss: f64) -> Result<()> {
+        use std::io::Write;
+        let p = self.out.join("metrics.csv");
+        let new = !p.exists();
+        let err = |e: std::io::Error| NnError::Save {
+            path: p.clone(),
+            detail: e.to_string(),
+        };
+        let mut f = std::fs::OpenOptions::new()
+            .create(true)
+            .append(true)
+            .open(&p)
+            .map_err(err)?;
+        if new {
+            writeln!(f, "step,kind,loss").map_err(err)?;
+        }
+        writeln!(f, "{},{kind},{loss:.6}", self.state.step).map_err(err)
+    }
+}
+
+/// The target level for an input level (indices into the tiles' `high`, `half`, `low` and
+/// theirs): an independent render, the cleanest other one.
+fn target_for(input: usize) -> usize {
+    if input == 0 {
+        1
+    } else {
+        0
+    }
+}
+
+/// Processed windows and PU targets of `plan` (tile, input level, target level, crop corner).
+fn batch(
+    set: &TileDataset,
+    plan: &[(usize, usize, usize, usize, usize)],
+    crop: usize,
+    device: &Device,
+) -> Result<Batch> {
+    let m = &set.manifest;
+    let (t, s) = (m.frames, m.tile);
+    let mut window = Vec::with_capacity(plan.len() * t * 9 * crop * crop);
+    let mut target = Vec::with_capacity(plan.len() * 3 * crop * crop);
+    for &(i, input, want, x0, y0) in plan {
+        let tile: Tile = set.get(i)?;
+        let at = |plane: usize, x: usize, y: usize| plane * s * s + (y0 + y) * s + x0 + x;
+        let colour = &tile.values[input];
+        let features = &tile.features[input];
+        let channels = m.feature_channels;
+        // the centre frame's OIDN autoexposure over the crop
+        let centre = t / 2;
+        let mut rgb = Plane::zeros(crop, crop, 3);
+        for c in 0..3 {
+            for y in 0..crop {
+                for x in 0..crop {
+                    rgb.channel_mut(c)[y * crop + x] = colour[at(centre * 3 + c, x, y)];
+                }
+            }
+        }
+        let mut bins = ExposureBins::new(crop, crop);
+        bins.add_rows(0, &rgb);
+        let scale = bins.exposure();
+        for k in 0..t {
+            let planes = [
+                (k * 3, colour, HDR_BEAUTY),
+                (k * channels + 3, features, AUX_ALBEDO),
+                (k * channels + 6, features, AUX_NORMAL),
+            ];
+            for (first, data, processing) in planes {
+                for c in 0..3 {
+                    for y in 0..crop {
+                        for x in 0..crop {
+                            window.push(processing.input(data[at(first + c, x, y)], scale));
+                        }
+                    }
+                }
+            }
+        }
+        // the wanted target, else the cleanest other render the tile has (never the input's
+        // own, which is not independent of it)
+        let levels = tile.targets.len();
+        let goal = std::iter::once(want)
+            .chain(0..levels)
+            .filter(|&l| l != input)
+            .find_map(|l| tile.targets[l].as_ref())
+            .ok_or_else(|| NnError::Tiles {
+                path: PathBuf::from("(tile)"),
+                detail: format!("tile {i} has no target"),
+            })?;
+        for c in 0..3 {
+            for y in 0..crop {
+                for x in 0..crop {
+                    target.push(HDR_BEAUTY.input(goal[at(c, x, y)], scale));
+                }
+            }
+        }
+    }
+    let b = plan.len();
+    Ok(Batch {
+        window: Tensor::from_data(TensorData::new(window, [b * t, 9, crop, crop]), device),
+        target: Tensor::from_data(TensorData::new(target, [b, 3, crop, crop]), device),
+    })
+}
