@@ -59,6 +59,7 @@ fn is_checkpoint_file(name: &str) -> bool {
     };
     numbered("checkpoint-")
         || numbered("optimizer-")
+        || numbered("temporal-optimizer-")
         || name == "checkpoint.bpk"
         || name == "optimizer.bpk"
 }
@@ -74,7 +75,9 @@ pub(crate) fn remove_other_checkpoints(out: &Path, keep: usize) {
     for e in entries.flatten() {
         let path = e.path();
         let name = e.file_name();
-        if is_checkpoint_file(&name.to_string_lossy()) && !kept.contains(&path) {
+        let name = name.to_string_lossy();
+        let kept_step = name.ends_with(&format!("-{keep:07}.bpk"));
+        if is_checkpoint_file(&name) && !kept.contains(&path) && !kept_step {
             if let Err(err) = std::fs::remove_file(&path) {
                 tracing::warn!("could not remove {}: {err}", path.display());
             }

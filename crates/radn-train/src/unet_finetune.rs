@@ -64,14 +64,23 @@ pub struct FinetuneConfig {
     pub crop: usize,
     /// Steps in all (over every resumed run).
     pub steps: usize,
-    /// Adam's learning rate.
+    /// Adam's learning rate for the U-Net's layers.
     pub lr: f64,
+    /// Adam's learning rate for the temporal blends (their gates start at zero: Adam moves a
+    /// weight by about its learning rate per step, so the U-Net's small rate would keep them
+    /// nearly closed for thousands of steps).
+    #[serde(default = "default_temporal_lr")]
+    pub temporal_lr: f64,
     /// Seed of the batches and crops.
     pub seed: u64,
     /// Steps between validations (and checkpoints).
     pub validate_every: usize,
     /// Validation tiles (the first ones of the set).
     pub val_tiles: usize,
+}
+
+fn default_temporal_lr() -> f64 {
+    1e-3
 }
 
 /// The `network` of a fine-tune of OIDN's converted U-Net.
@@ -132,6 +141,7 @@ pub struct Finetune {
     device: Device,
     net: TemporalUnet,
     optim: burn::optim::ModuleOptimizer,
+    temporal_optim: burn::optim::ModuleOptimizer,
     /// Its progress.
     pub state: FinetuneState,
     train: TileDataset,
@@ -178,6 +188,7 @@ impl Finetune {
         let state_path = out.join("state.json");
         let mut run = Self {
             optim: AdamConfig::new().init(),
+            temporal_optim: AdamConfig::new().init(),
             state: FinetuneState::default(),
             config,
             out: out.to_path_buf(),
@@ -211,6 +222,11 @@ impl Finetune {
                 .init()
                 .load(&optimizer)
                 .map_err(|e| load(&optimizer, format!("{e:?}")))?;
+            let temporal = temporal_optimizer_file(out, run.state.step);
+            run.temporal_optim = AdamConfig::new()
+                .init()
+                .load(&temporal)
+                .map_err(|e| load(&temporal, format!("{e:?}")))?;
             remove_other_checkpoints(out, run.state.step);
         }
         run.freeze();
@@ -260,9 +276,14 @@ impl Finetune {
                 self.state.step
             )));
         }
-        let grads = GradientsParams::from_grads(loss.backward(), &self.net);
-        // modules hold tensor handles: the clone is cheap
-        self.net = self.optim.step(self.config.lr, self.net.clone(), grads);
+        let mut grads = loss.backward();
+        let temporal = GradientsParams::from_module(&mut grads, &self.net.temporal);
+        let unet = GradientsParams::from_grads(grads, &self.net.unet);
+        // modules hold tensor handles: the clones are cheap
+        self.net.temporal =
+            self.temporal_optim
+                .step(self.config.temporal_lr, self.net.temporal.clone(), temporal);
+        self.net.unet = self.optim.step(self.config.lr, self.net.unet.clone(), unet);
         self.state.step += 1;
         Ok(value)
     }
@@ -270,17 +291,25 @@ impl Finetune {
     /// The mean validation loss (PU space) on the first `val_tiles` tiles, input `low`
     /// against the cleanest target the tile has.
     pub fn validate(&self) -> Result<f64> {
+        Ok(self.validation()?.0)
+    }
+
+    /// The mean validation loss and the mean PSNR (dB, PU space: 10·log10(1 / MSE)) of
+    /// [`Finetune::validate`]'s tiles.
+    pub fn validation(&self) -> Result<(f64, f64)> {
         // off the autodiff graph
         let plain = self.device.clone().without_autodiff();
         let net = self.net.valid();
         let n = self.config.val_tiles.min(self.val.len()).max(1);
-        let mut sum = 0.0;
+        let (mut l1, mut psnr) = (0.0, 0.0);
         for i in 0..n {
             let b = batch(&self.val, &[(i, 2, 0, 0, 0)], self.config.crop, &plain)?;
-            let out = net.forward(b.window, None);
-            sum += (out - b.target).abs().mean().into_scalar::<f32>() as f64;
+            let diff = net.forward(b.window, None) - b.target;
+            l1 += diff.clone().abs().mean().into_scalar::<f32>() as f64;
+            let mse = diff.powi_scalar(2).mean().into_scalar::<f32>() as f64;
+            psnr += -10.0 * mse.max(1e-12).log10();
         }
-        Ok(sum / n as f64)
+        Ok((l1 / n as f64, psnr / n as f64))
     }
 
     /// Saves a checkpoint: weights and optimizer files named by the step, then `state.json`
@@ -302,6 +331,12 @@ impl Finetune {
                 .save(tmp)
                 .map_err(|e| save(tmp, format!("{e:?}")))
         })?;
+        let temporal = temporal_optimizer_file(&self.out, self.state.step);
+        write_atomically_with(&temporal, |_, tmp| {
+            self.temporal_optim
+                .save(tmp)
+                .map_err(|e| save(tmp, format!("{e:?}")))
+        })?;
         let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
         write_bytes_atomically(&self.out.join("state.json"), st.as_bytes())?;
         remove_other_checkpoints(&self.out, self.state.step);
@@ -318,21 +353,21 @@ impl Finetune {
     ) -> Result<()> {
         let started = Instant::now();
         if self.state.start_val.is_none() {
-            let v = self.validate()?;
+            let (v, psnr) = self.validation()?;
             self.state.start_val = Some(v);
             self.state.best_val = Some(v);
-            self.log("val", v)?;
+            self.log("val", v, Some(psnr))?;
         }
         while self.state.step < self.config.steps {
             let loss = self.step()?;
             on_step(self.state.step, loss);
-            self.log("train", loss)?;
+            self.log("train", loss, None)?;
             let due = self.state.step.is_multiple_of(self.config.validate_every)
                 || self.state.step == self.config.steps;
             let out_of_time = budget.is_some_and(|b| started.elapsed() >= b);
             if due {
-                let v = self.validate()?;
-                self.log("val", v)?;
+                let (v, psnr) = self.validation()?;
+                self.log("val", v, Some(psnr))?;
                 if self.state.best_val.is_none_or(|b| v < b) {
                     self.state.best_val = Some(v);
                 }
@@ -348,7 +383,7 @@ impl Finetune {
     }
 
     /// Appends a row to `metrics.csv`.
-    fn log(&self, kind: &str, loss: f64) -> Result<()> {
+    fn log(&self, kind: &str, loss: f64, psnr: Option<f64>) -> Result<()> {
         use std::io::Write;
         let p = self.out.join("metrics.csv");
         let new = !p.exists();
@@ -362,10 +397,16 @@ impl Finetune {
             .open(&p)
             .map_err(err)?;
         if new {
-            writeln!(f, "step,kind,loss").map_err(err)?;
+            writeln!(f, "step,kind,loss,psnr").map_err(err)?;
         }
-        writeln!(f, "{},{kind},{loss:.6}", self.state.step).map_err(err)
+        let psnr = psnr.map_or(String::new(), |p| format!("{p:.3}"));
+        writeln!(f, "{},{kind},{loss:.6},{psnr}", self.state.step).map_err(err)
     }
+}
+
+/// The temporal blends' optimizer state of the checkpoint of `step`.
+fn temporal_optimizer_file(out: &Path, step: usize) -> PathBuf {
+    out.join(format!("temporal-optimizer-{step:07}.bpk"))
 }
 
 /// The target level for an input level (indices into the tiles' `high`, `half`, `low` and
