@@ -71,6 +71,10 @@ pub struct FinetuneConfig {
     /// nearly closed for thousands of steps).
     #[serde(default = "default_temporal_lr")]
     pub temporal_lr: f64,
+    /// Adam's epsilon: small against the gradients (burn's default, 1e-5, is larger than most
+    /// of the gates' gradients and held them at a fiftieth of their learning rate).
+    #[serde(default = "default_adam_epsilon")]
+    pub adam_epsilon: f32,
     /// Seed of the batches and crops.
     pub seed: u64,
     /// Steps between validations (and checkpoints).
@@ -81,6 +85,10 @@ pub struct FinetuneConfig {
 
 fn default_temporal_lr() -> f64 {
     1e-3
+}
+
+fn default_adam_epsilon() -> f32 {
+    1e-8
 }
 
 /// The `network` of a fine-tune of OIDN's converted U-Net.
@@ -187,8 +195,8 @@ impl Finetune {
             .map_err(|e| NnError::Config(e.to_string()))?;
         let state_path = out.join("state.json");
         let mut run = Self {
-            optim: AdamConfig::new().init(),
-            temporal_optim: AdamConfig::new().init(),
+            optim: AdamConfig::new().with_epsilon(config.adam_epsilon).init(),
+            temporal_optim: AdamConfig::new().with_epsilon(config.adam_epsilon).init(),
             state: FinetuneState::default(),
             config,
             out: out.to_path_buf(),
@@ -218,12 +226,15 @@ impl Finetune {
                     "the checkpoint does not match the configured network".into(),
                 ));
             }
+            let eps = run.config.adam_epsilon;
             run.optim = AdamConfig::new()
+                .with_epsilon(eps)
                 .init()
                 .load(&optimizer)
                 .map_err(|e| load(&optimizer, format!("{e:?}")))?;
             let temporal = temporal_optimizer_file(out, run.state.step);
             run.temporal_optim = AdamConfig::new()
+                .with_epsilon(eps)
                 .init()
                 .load(&temporal)
                 .map_err(|e| load(&temporal, format!("{e:?}")))?;

@@ -63,6 +63,17 @@ pub struct TemporalLayers {
     blends: Vec<LevelBlend>,
 }
 
+impl TemporalLayers {
+    /// How open each blend's gate is: the mean absolute gate over its channels (0: closed,
+    /// the per-frame U-Net at that level).
+    pub fn openness(&self) -> Vec<f32> {
+        self.blends
+            .iter()
+            .map(|b| b.gate.val().abs().mean().into_scalar::<f32>())
+            .collect()
+    }
+}
+
 /// OIDN's U-Net converted into a spatio-temporal network.
 #[derive(Module, Debug)]
 pub struct TemporalUnet {
