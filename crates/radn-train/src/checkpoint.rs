@@ -3,8 +3,10 @@
 
 use std::path::{Path, PathBuf};
 
-use radn_core::io::output::write_bytes_atomically;
-use radn_nn::error::Result;
+use burn::module::Module;
+use burn::store::ModuleSnapshot;
+use radn_core::io::output::{write_atomically_with, write_bytes_atomically};
+use radn_nn::error::{NnError, Result};
 
 /// Removes the rows logged after `step` from a run's metrics CSV (left by a run killed between
 /// checkpoints), so a resumed run's curves have one row per step and kind.
@@ -38,6 +40,38 @@ pub(crate) fn drop_rows_from(path: &Path, first: usize) -> Result<()> {
         return Ok(());
     }
     write_bytes_atomically(path, kept.as_bytes())?;
+    Ok(())
+}
+
+/// Writes a checkpoint of step `step` into `out`: `net`'s weights (Burnpack, with parameter
+/// ids) and each optimizer's state to its file (the first to [`checkpoint_files`]' optimizer
+/// file), then `state` as `state.json` — the commit: a run killed at any point resumes from
+/// the last checkpoint whose `state.json` was written — then removes every older checkpoint.
+pub(crate) fn write_checkpoint<M: Module>(
+    out: &Path,
+    step: usize,
+    net: &M,
+    optimizers: &[(PathBuf, &burn::optim::ModuleOptimizer)],
+    state: &impl serde::Serialize,
+) -> Result<()> {
+    let save = |path: &Path, e: String| NnError::Save {
+        path: path.to_path_buf(),
+        detail: e,
+    };
+    let [weights, _] = checkpoint_files(out, step);
+    write_atomically_with(&weights, |_, tmp| {
+        let mut bp = burn::store::BurnpackStore::from_file(tmp).overwrite(true);
+        net.save_into(&mut bp)
+            .map_err(|e| save(tmp, format!("{e:?}")))
+    })?;
+    for (path, optim) in optimizers {
+        write_atomically_with(path, |_, tmp| {
+            optim.save(tmp).map_err(|e| save(tmp, format!("{e:?}")))
+        })?;
+    }
+    let st = serde_json::to_string_pretty(state).expect("state serialises");
+    write_bytes_atomically(&out.join("state.json"), st.as_bytes())?;
+    remove_other_checkpoints(out, step);
     Ok(())
 }
 

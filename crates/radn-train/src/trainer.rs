@@ -15,12 +15,13 @@ use serde::{Deserialize, Serialize};
 
 use crate::batch::{blend_values, make_batch};
 pub use crate::checkpoint::{checkpoint_files, step_model_path};
-use crate::checkpoint::{drop_metrics_after, drop_rows_from, remove_other_checkpoints};
+use crate::checkpoint::{
+    drop_metrics_after, drop_rows_from, remove_other_checkpoints, write_checkpoint,
+};
 pub use crate::config::TrainConfig;
 use crate::dataset::{SplitMix, TileDataset};
 use crate::layer_stats::{append_csv, gradient_norms, step_stats};
 use crate::objective::{objective, sample_pair, LossFn, PairRule, PixelLoss};
-use radn_core::io::output::{write_atomically_with, write_bytes_atomically};
 use radn_nn::error::{NnError, Result};
 use radn_nn::model::config::NetConfig;
 use radn_nn::model::demod::Demodulation;
@@ -471,27 +472,15 @@ impl Trainer {
     /// whose files are still there; the earlier checkpoint's files are removed only after it.
     pub fn checkpoint(&self) -> Result<()> {
         store::save(&self.denoiser, &self.out.join("model.safetensors"))?;
-        let save_err = |path: &Path, e: String| NnError::Save {
-            path: path.to_path_buf(),
-            detail: e,
-        };
-        let [weights, optimizer] = checkpoint_files(&self.out, self.state.step);
-        write_atomically_with(&weights, |_, tmp| {
-            let mut bp = burn::store::BurnpackStore::from_file(tmp).overwrite(true);
-            self.denoiser
-                .net
-                .save_into(&mut bp)
-                .map_err(|e| save_err(tmp, format!("{e:?}")))
-        })?;
-        write_atomically_with(&optimizer, |_, tmp| {
-            self.optim
-                .save(tmp)
-                .map_err(|e| save_err(tmp, format!("{e:?}")))
-        })?;
-        let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
-        write_bytes_atomically(&self.out.join("state.json"), st.as_bytes())?;
-        remove_other_checkpoints(&self.out, self.state.step);
-        Ok(())
+        let step = self.state.step;
+        let [_, optimizer] = checkpoint_files(&self.out, step);
+        write_checkpoint(
+            &self.out,
+            step,
+            &self.denoiser.net,
+            &[(optimizer, &self.optim)],
+            &self.state,
+        )
     }
 
     /// Appends a line to `metrics.csv` (header written once).

@@ -18,14 +18,13 @@ use burn::tensor::{Device, Tensor, TensorData};
 use serde::{Deserialize, Serialize};
 
 use radn_core::guide::exposure::ExposureBins;
-use radn_core::io::output::{write_atomically_with, write_bytes_atomically};
 use radn_core::Plane;
 use radn_nn::oidn_unet::store;
 use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet};
 use radn_nn::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
 use radn_nn::{NnError, Result};
 
-use crate::checkpoint::{checkpoint_files, remove_other_checkpoints};
+use crate::checkpoint::{checkpoint_files, remove_other_checkpoints, write_checkpoint};
 use crate::dataset::{SplitMix, Tile, TileDataset};
 
 /// Which of the network's layers a fine-tune trains (the rest keep OIDN's weights).
@@ -326,32 +325,16 @@ impl Finetune {
     /// Saves a checkpoint: weights and optimizer files named by the step, then `state.json`
     /// (the commit), then the older checkpoint's files are removed.
     pub fn checkpoint(&mut self) -> Result<()> {
-        let save = |path: &Path, e: String| NnError::Save {
-            path: path.to_path_buf(),
-            detail: e,
-        };
-        let [weights, optimizer] = checkpoint_files(&self.out, self.state.step);
-        write_atomically_with(&weights, |_, tmp| {
-            let mut bp = burn::store::BurnpackStore::from_file(tmp).overwrite(true);
-            self.net
-                .save_into(&mut bp)
-                .map_err(|e| save(tmp, format!("{e:?}")))
-        })?;
-        write_atomically_with(&optimizer, |_, tmp| {
-            self.optim
-                .save(tmp)
-                .map_err(|e| save(tmp, format!("{e:?}")))
-        })?;
-        let temporal = temporal_optimizer_file(&self.out, self.state.step);
-        write_atomically_with(&temporal, |_, tmp| {
-            self.temporal_optim
-                .save(tmp)
-                .map_err(|e| save(tmp, format!("{e:?}")))
-        })?;
-        let st = serde_json::to_string_pretty(&self.state).expect("state serialises");
-        write_bytes_atomically(&self.out.join("state.json"), st.as_bytes())?;
-        remove_other_checkpoints(&self.out, self.state.step);
-        Ok(())
+        let step = self.state.step;
+        let [_, optimizer] = checkpoint_files(&self.out, step);
+        let optimizers = [
+            (optimizer, &self.optim),
+            (
+                temporal_optimizer_file(&self.out, step),
+                &self.temporal_optim,
+            ),
+        ];
+        write_checkpoint(&self.out, step, &self.net, &optimizers, &self.state)
     }
 
     /// Trains to the configured steps or until `budget` has passed (then checkpoints and

@@ -64,13 +64,7 @@ pub fn run(a: Args) -> Result<()> {
     let base = a.config.parent().map(PathBuf::from).unwrap_or_default();
     let device = a.device.open_for_training()?;
     let mut trainer = Trainer::new(config.clone(), &base, &a.out, a.resume, &device)?;
-    let pb = indicatif::ProgressBar::new(config.steps as u64);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps  ETA {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    pb.set_position(trainer.state.step as u64);
+    let pb = steps_bar(config.steps, trainer.state.step);
     println!(
         "training '{}' on {} ({} parameters) from step {} to {}",
         trainer.denoiser.config.name,
@@ -119,13 +113,7 @@ fn finetune(a: &Args, text: &str) -> Result<()> {
         "fine-tuning OIDN's U-Net with Robust Average blocks at levels {:?} on {} from step {} to {}",
         config.levels, a.device, run.state.step, config.steps
     );
-    let pb = indicatif::ProgressBar::new(config.steps as u64);
-    pb.set_style(
-        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps  ETA {eta}")
-            .expect("valid template")
-            .progress_chars("=> "),
-    );
-    pb.set_position(run.state.step as u64);
+    let pb = steps_bar(config.steps, run.state.step);
     let budget = a
         .budget
         .map(|m| std::time::Duration::from_secs_f64(m * 60.0));
@@ -143,4 +131,16 @@ fn finetune(a: &Args, text: &str) -> Result<()> {
         a.out.display()
     );
     Ok(())
+}
+
+/// A progress bar over a run's `steps`, at step `at`.
+fn steps_bar(steps: usize, at: usize) -> indicatif::ProgressBar {
+    let pb = indicatif::ProgressBar::new(steps as u64);
+    pb.set_style(
+        indicatif::ProgressStyle::with_template("{msg} [{bar:30}] {pos}/{len} steps  ETA {eta}")
+            .expect("valid template")
+            .progress_chars("=> "),
+    );
+    pb.set_position(at as u64);
+    pb
 }
