@@ -3,7 +3,9 @@
 //! processes them as OIDN does (the beauty at the centre tile's OIDN autoexposure through the
 //! PU curve, albedo clamped, normals mapped to [0, 1]), and fits the centre frame's output to
 //! an independent render of it (Noise2Noise pairs: a cleaner level where there is one), in the
-//! network's PU space, where OIDN trained it. Runs are resumable and stop at a time budget:
+//! network's PU space, where OIDN trained it. With the paper's temporal loss (§5), two of three
+//! windows hold only a pair of frames around the centre, not the centre itself, and are fitted
+//! to the same target, so the network must learn to use its neighbours. Runs are resumable and stop at a time budget:
 //! checkpoints hold the weights (Burnpack, with parameter ids), the optimizer state and the
 //! step, committed by `state.json`, and every step's batch is drawn from the seed and the step
 //! alone, so a resumed run continues exactly as an uninterrupted one.
@@ -80,6 +82,15 @@ pub struct FinetuneConfig {
     pub validate_every: usize,
     /// Validation tiles (the first ones of the set).
     pub val_tiles: usize,
+    /// The paper's spatial-to-temporal loss conversion (§5): two of every three windows are a
+    /// pair of frames, one before and one after the centre, without the centre frame, fitted to
+    /// the same target; off: every window is the whole window.
+    #[serde(default = "default_true")]
+    pub temporal_loss: bool,
+}
+
+fn default_true() -> bool {
+    true
 }
 
 fn default_temporal_lr() -> f64 {
@@ -153,6 +164,17 @@ pub struct Finetune {
     pub state: FinetuneState,
     train: TileDataset,
     val: TileDataset,
+}
+
+/// One window of a batch: tile, input and target levels, crop corner, and which of the tile's
+/// frames fills each window slot (all of them in order, or a pair without the centre).
+#[derive(Clone, Debug)]
+struct Draw {
+    tile: usize,
+    input: usize,
+    target: usize,
+    corner: (usize, usize),
+    frames: Vec<usize>,
 }
 
 /// A batch as tensors: processed windows `[B · T, 9, S, S]` and targets in PU `[B, 3, S, S]`.
@@ -260,16 +282,31 @@ impl Finetune {
     }
 
     /// The tiles, levels and crop corner of step `step`'s batch, from the seed and the step.
-    fn plan(&self, step: usize) -> Vec<(usize, usize, usize, usize, usize)> {
+    fn plan(&self, step: usize) -> Vec<Draw> {
         let mut rng =
             SplitMix(self.config.seed ^ (step as u64).wrapping_mul(0x9E37_79B9_7F4A_7C15));
         let room = self.train.manifest.tile - self.config.crop;
+        let t = self.train.manifest.frames;
         (0..self.config.batch)
             .map(|_| {
-                let i = rng.below(self.train.len());
+                let tile = rng.below(self.train.len());
                 let input = rng.below(3);
-                let (x0, y0) = (rng.below(room + 1), rng.below(room + 1));
-                (i, input, target_for(input), x0, y0)
+                let corner = (rng.below(room + 1), rng.below(room + 1));
+                // the centre term, or the pair (k, k + t/2 + 1): one frame before the centre
+                // and one after, filling the slots in turn (the centre's slot by a coin)
+                let term = if self.config.temporal_loss {
+                    rng.below(3)
+                } else {
+                    0
+                };
+                let frames = window_frames(t, term, rng.below(2) == 0);
+                Draw {
+                    tile,
+                    input,
+                    target: target_for(input),
+                    corner,
+                    frames,
+                }
             })
             .collect()
     }
@@ -313,7 +350,14 @@ impl Finetune {
         let n = self.config.val_tiles.min(self.val.len()).max(1);
         let (mut l1, mut psnr) = (0.0, 0.0);
         for i in 0..n {
-            let b = batch(&self.val, &[(i, 2, 0, 0, 0)], self.config.crop, &plain)?;
+            let whole = Draw {
+                tile: i,
+                input: 2,
+                target: 0,
+                corner: (0, 0),
+                frames: (0..self.val.manifest.frames).collect(),
+            };
+            let b = batch(&self.val, &[whole], self.config.crop, &plain)?;
             let diff = net.forward(b.window, None) - b.target;
             l1 += diff.clone().abs().mean().into_scalar::<f32>() as f64;
             let mse = diff.powi_scalar(2).mean().into_scalar::<f32>() as f64;
@@ -398,6 +442,31 @@ impl Finetune {
     }
 }
 
+/// Which of a `t`-frame tile's frames fills each slot of a training window for loss term
+/// `term`: 0 the whole window in order; k ≥ 1 the pair (k − 1, k + t/2), one frame before
+/// the centre and one after (for 5 frames: the first and fourth, the second and fifth, as
+/// in the paper's Fig. 4), in alternate slots, the centre slot taking the earlier frame when
+/// `earlier` and the later otherwise.
+fn window_frames(t: usize, term: usize, earlier: bool) -> Vec<usize> {
+    if term == 0 {
+        return (0..t).collect();
+    }
+    let (a, b) = (term - 1, term + t / 2);
+    (0..t)
+        .map(|slot| match slot {
+            s if s == t / 2 => {
+                if earlier {
+                    a
+                } else {
+                    b
+                }
+            }
+            s if s % 2 == 0 => a,
+            _ => b,
+        })
+        .collect()
+}
+
 /// The temporal blends' optimizer state of the checkpoint of `step`.
 fn temporal_optimizer_file(out: &Path, step: usize) -> PathBuf {
     out.join(format!("temporal-optimizer-{step:07}.bpk"))
@@ -414,24 +483,20 @@ fn target_for(input: usize) -> usize {
 }
 
 /// Processed windows and PU targets of `plan` (tile, input level, target level, crop corner).
-fn batch(
-    set: &TileDataset,
-    plan: &[(usize, usize, usize, usize, usize)],
-    crop: usize,
-    device: &Device,
-) -> Result<Batch> {
+fn batch(set: &TileDataset, plan: &[Draw], crop: usize, device: &Device) -> Result<Batch> {
     let m = &set.manifest;
     let (t, s) = (m.frames, m.tile);
     let mut window = Vec::with_capacity(plan.len() * t * 9 * crop * crop);
     let mut target = Vec::with_capacity(plan.len() * 3 * crop * crop);
-    for &(i, input, want, x0, y0) in plan {
+    for d in plan {
+        let (i, input, want, (x0, y0)) = (d.tile, d.input, d.target, d.corner);
         let tile: Tile = set.get(i)?;
         let at = |plane: usize, x: usize, y: usize| plane * s * s + (y0 + y) * s + x0 + x;
         let colour = &tile.values[input];
         let features = &tile.features[input];
         let channels = m.feature_channels;
-        // the centre frame's OIDN autoexposure over the crop
-        let centre = t / 2;
+        // the centre slot's OIDN autoexposure over the crop
+        let centre = d.frames[t / 2];
         let mut rgb = Plane::zeros(crop, crop, 3);
         for c in 0..3 {
             for y in 0..crop {
@@ -443,7 +508,7 @@ fn batch(
         let mut bins = ExposureBins::new(crop, crop);
         bins.add_rows(0, &rgb);
         let scale = bins.exposure();
-        for k in 0..t {
+        for &k in &d.frames {
             let planes = [
                 (k * 3, colour, HDR_BEAUTY),
                 (k * channels + 3, features, AUX_ALBEDO),
@@ -483,4 +548,19 @@ fn batch(
         window: Tensor::from_data(TensorData::new(window, [b * t, 9, crop, crop]), device),
         target: Tensor::from_data(TensorData::new(target, [b, 3, crop, crop]), device),
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::window_frames;
+
+    #[test]
+    fn the_temporal_terms_are_the_papers_pairs_without_the_centre() {
+        assert_eq!(window_frames(5, 0, true), vec![0, 1, 2, 3, 4]);
+        // first and fourth, second and fifth: never the centre frame
+        assert_eq!(window_frames(5, 1, true), vec![0, 3, 0, 3, 0]);
+        assert_eq!(window_frames(5, 1, false), vec![0, 3, 3, 3, 0]);
+        assert_eq!(window_frames(5, 2, true), vec![1, 4, 1, 4, 1]);
+        assert_eq!(window_frames(3, 1, false), vec![0, 2, 0]);
+    }
 }
