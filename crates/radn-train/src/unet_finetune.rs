@@ -435,10 +435,22 @@ impl Finetune {
             .open(&p)
             .map_err(err)?;
         if new {
-            writeln!(f, "step,kind,loss,psnr").map_err(err)?;
+            writeln!(f, "step,kind,loss,psnr,gates").map_err(err)?;
         }
         let psnr = psnr.map_or(String::new(), |p| format!("{p:.3}"));
-        writeln!(f, "{},{kind},{loss:.6},{psnr}", self.state.step).map_err(err)
+        // at validations, how open each level's gate is (mean |gate|, levels in order)
+        let gates = if kind == "val" {
+            self.net
+                .temporal
+                .openness()
+                .iter()
+                .map(|g| format!("{g:.4}"))
+                .collect::<Vec<_>>()
+                .join(" ")
+        } else {
+            String::new()
+        };
+        writeln!(f, "{},{kind},{loss:.6},{psnr},{gates}", self.state.step).map_err(err)
     }
 }
 
