@@ -273,7 +273,7 @@ fn tiles_equal_the_whole_frame_exactly_and_burn_equals_the_cpu_kernels() {
         .to_planar();
     let burn = net
         .forward(Tensor::from_data(
-            TensorData::new(x, [1, 9, h, w]),
+            TensorData::new(x.clone(), [1, 9, h, w]),
             &Device::flex(),
         ))
         .into_data()
@@ -285,4 +285,30 @@ fn tiles_equal_the_whole_frame_exactly_and_burn_equals_the_cpu_kernels() {
         .map(|(a, b)| (a - b).abs())
         .fold(0.0f32, f32::max);
     assert!(worst < 1e-4, "burn and the CPU kernels differ by {worst}");
+    // and the encoder's levels alone, which a converted network keeps per frame
+    let blocked = radn_nn::oidn_unet::cpu::blocked::Blocked::from_planar(&x, 9, h, w);
+    let cpu_levels = f.encode(blocked);
+    let burn_levels = net.encode(Tensor::from_data(
+        TensorData::new(x, [1, 9, h, w]),
+        &Device::flex(),
+    ));
+    assert_eq!(cpu_levels.len(), burn_levels.0.len());
+    assert_eq!(cpu_levels.len(), net.level_channels().len());
+    for (k, (c, b)) in cpu_levels.iter().zip(burn_levels.0).enumerate() {
+        assert_eq!(
+            [1, c.channels(), c.height(), c.width()],
+            b.dims(),
+            "level {k}"
+        );
+        let b = b.into_data().try_to_vec::<f32>().unwrap();
+        let worst = c
+            .to_planar()
+            .iter()
+            .zip(&b)
+            .fold(0.0f32, |m, (p, q)| m.max((p - q).abs()));
+        assert!(
+            worst < 1e-4,
+            "level {k}: burn and the CPU kernels differ by {worst}"
+        );
+    }
 }

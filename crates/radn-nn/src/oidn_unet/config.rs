@@ -184,6 +184,16 @@ impl Layers {
         }
     }
 
+    /// Steps of the encoder: up to the first convolution whose output is upsampled (the
+    /// bottleneck), which the per-frame half of a converted network runs.
+    pub fn encoder_steps(self) -> usize {
+        self.steps()
+            .iter()
+            .position(|s| s.after == After::Upsample)
+            .expect("a U-Net upsamples")
+            + 1
+    }
+
     /// How far (in pixels) an output pixel can see: the sum over the steps of each 3×3
     /// convolution's reach and each pooling's, at its scale. Tiles overlap by at least this
     /// (rounded up to [`ALIGNMENT`]) so that tiled output equals whole-frame output.

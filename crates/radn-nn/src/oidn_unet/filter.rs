@@ -331,56 +331,86 @@ impl UnetFilter {
     /// The network on one processed tile (sides multiples of 16): its 3 output channels. Every
     /// map it makes comes from and goes back to the filter's scratch, except the result.
     pub fn forward(&self, input: Blocked) -> Blocked {
+        self.decode(self.encode(input))
+    }
+
+    /// The encoder on one processed tile: the levels the decoder reads, finest first (the
+    /// input, the three pooled skip maps, the bottleneck's output), as
+    /// [`OidnUnet::encode`](crate::oidn_unet::OidnUnet::encode) gives them. A converted
+    /// network runs it once per frame.
+    pub fn encode(&self, input: Blocked) -> Vec<Blocked> {
         let scratch = &self.scratch;
+        let n = self.config.layers.encoder_steps();
         let mut pools: Vec<Blocked> = Vec::new();
-        // the previous step's output, when it is neither the input nor a kept pool
+        // the previous step's output, when it is neither the input nor the last pool
         let mut x: Option<Blocked> = None;
-        // whether the previous step upsampled: the next convolution reads its output so
-        let mut upsampled = false;
-        for (step, conv) in self.config.layers.steps().iter().zip(&self.convs) {
+        for (step, conv) in self.config.layers.steps()[..n].iter().zip(&self.convs) {
             let started = std::time::Instant::now();
             let fused = Fused {
-                upsample_first: upsampled,
+                upsample_first: false,
                 pool: step.after == After::Pool,
             };
             let y = {
-                let prev = match (&x, pools.last()) {
-                    (Some(x), _) => x,
-                    // right after a pooling, its output
-                    (None, Some(p)) => p,
-                    (None, None) => &input,
-                };
-                match step.skip {
-                    None => conv.run_fused(&[prev], scratch, fused),
-                    Some(Skip::Input) => conv.run_fused(&[prev, &input], scratch, fused),
-                    Some(Skip::Pool(n)) => conv.run_fused(&[prev, &pools[n - 1]], scratch, fused),
-                }
+                let prev = x.as_ref().or(pools.last()).unwrap_or(&input);
+                conv.run_fused(&[prev], scratch, fused)
             };
-            tracing::trace!(
-                "{} to {}x{}: {:.1} ms",
-                step.conv,
-                y.width(),
-                y.height(),
-                started.elapsed().as_secs_f64() * 1e3
-            );
+            trace_step(step.conv, &y, started);
             if let Some(old) = x.take() {
                 scratch.recycle(old);
             }
-            upsampled = step.after == After::Upsample;
-            x = match step.after {
-                After::Nothing | After::Upsample => Some(y),
-                After::Pool => {
-                    pools.push(y);
-                    None
-                }
-            };
+            match step.after {
+                After::Pool => pools.push(y),
+                After::Nothing | After::Upsample => x = Some(y),
+            }
         }
-        for p in pools {
-            scratch.recycle(p);
+        // the last pooling fed only the bottleneck
+        if let Some(last) = pools.pop() {
+            scratch.recycle(last);
         }
-        scratch.recycle(input);
-        x.expect("the network ends with a convolution")
+        let mut levels = vec![input];
+        levels.extend(pools);
+        levels.push(x.expect("the encoder ends with the bottleneck"));
+        levels
     }
+
+    /// The decoder on one tile's levels ([`UnetFilter::encode`]'s, or a window's blended
+    /// ones): the network's 3 output channels. The levels go back to the scratch.
+    pub fn decode(&self, mut levels: Vec<Blocked>) -> Blocked {
+        let scratch = &self.scratch;
+        let n = self.config.layers.encoder_steps();
+        let mut x = levels.pop().expect("the bottleneck level");
+        // the bottleneck's output is upsampled: the first decoder convolution reads it so
+        let mut upsampled = true;
+        for (step, conv) in self.config.layers.steps()[n..].iter().zip(&self.convs[n..]) {
+            let started = std::time::Instant::now();
+            let fused = Fused {
+                upsample_first: upsampled,
+                pool: false,
+            };
+            let y = match step.skip {
+                None => conv.run_fused(&[&x], scratch, fused),
+                Some(Skip::Input) => conv.run_fused(&[&x, &levels[0]], scratch, fused),
+                Some(Skip::Pool(k)) => conv.run_fused(&[&x, &levels[k]], scratch, fused),
+            };
+            trace_step(step.conv, &y, started);
+            scratch.recycle(std::mem::replace(&mut x, y));
+            upsampled = step.after == After::Upsample;
+        }
+        for l in levels {
+            scratch.recycle(l);
+        }
+        x
+    }
+}
+
+/// Logs one step's time (`RUST_LOG=radn_nn=trace`).
+fn trace_step(conv: &str, y: &Blocked, started: std::time::Instant) {
+    tracing::trace!(
+        "{conv} to {}x{}: {:.1} ms",
+        y.width(),
+        y.height(),
+        started.elapsed().as_secs_f64() * 1e3
+    );
 }
 
 /// One tile: the buffer the network runs on and the core it writes, as `[x0, y0, x1, y1]` in

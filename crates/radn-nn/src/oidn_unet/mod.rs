@@ -138,13 +138,7 @@ impl OidnUnet {
     /// Steps of the encoder: up to the first convolution whose output is upsampled (the
     /// bottleneck).
     pub fn encoder_steps(&self) -> usize {
-        self.config
-            .layers
-            .steps()
-            .iter()
-            .position(|s| s.after == After::Upsample)
-            .expect("a U-Net upsamples")
-            + 1
+        self.config.layers.encoder_steps()
     }
 
     /// Channels of each of [`OidnUnet::encode`]'s levels, finest first.
