@@ -72,8 +72,8 @@ pub struct FinetuneConfig {
     /// nearly closed for thousands of steps).
     #[serde(default = "default_temporal_lr")]
     pub temporal_lr: f64,
-    /// Adam's epsilon: small against the gradients (burn's default, 1e-5, is larger than most
-    /// of the gates' gradients and held them at a fiftieth of their learning rate).
+    /// Adam's epsilon: it must stay small against the gates' gradients (each a mean over every
+    /// pixel), or it, not the learning rate, sets how fast they open.
     #[serde(default = "default_adam_epsilon")]
     pub adam_epsilon: f32,
     /// Seed of the batches and crops.
