@@ -21,13 +21,18 @@ use serde::{Deserialize, Serialize};
 
 use radn_core::guide::exposure::ExposureBins;
 use radn_core::Plane;
-use radn_nn::oidn_unet::store;
 use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet};
 use radn_nn::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
+use radn_nn::oidn_unet::{store, temporal_store};
 use radn_nn::{NnError, Result};
 
 use crate::checkpoint::{checkpoint_files, remove_other_checkpoints, write_checkpoint};
 use crate::dataset::{SplitMix, Tile, TileDataset};
+
+/// The model file (`radn denoise --method temporal --model`) of the best validation so far.
+pub const BEST_MODEL: &str = "best.safetensors";
+/// The model file of the last checkpoint.
+pub const LAST_MODEL: &str = "model.safetensors";
 
 /// Which of the network's layers a fine-tune trains (the rest keep OIDN's weights).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
@@ -408,10 +413,12 @@ impl Finetune {
                 self.log("val", v, Some(psnr))?;
                 if self.state.best_val.is_none_or(|b| v < b) {
                     self.state.best_val = Some(v);
+                    temporal_store::save(&self.net.valid(), &self.out.join(BEST_MODEL))?;
                 }
             }
             if due || out_of_time {
                 self.checkpoint()?;
+                temporal_store::save(&self.net.valid(), &self.out.join(LAST_MODEL))?;
             }
             if out_of_time {
                 break;

@@ -68,6 +68,17 @@ pub fn spatial(
     })
 }
 
+/// The temporal method: the converted U-Net in model file `path`.
+pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::TemporalDenoiser> {
+    use radn_nn::oidn_unet::window_denoiser::TemporalDenoiser;
+    use radn_nn::oidn_unet::{temporal_filter::TemporalFilter, temporal_store};
+    let net = temporal_store::load(path, &Device::flex())?;
+    Ok(TemporalDenoiser::new(
+        TemporalFilter::new(&net),
+        path.display().to_string(),
+    ))
+}
+
 /// Loads `path`, or the compiled-in default model when none is given.
 pub fn load(path: Option<&Path>, device: &Device) -> Result<Denoiser> {
     load_for(path, false, device)

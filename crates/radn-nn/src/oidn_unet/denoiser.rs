@@ -68,7 +68,7 @@ impl SpatialDenoiser {
 }
 
 /// A one-channel plane as grey RGB, and an RGB plane's channel mean back.
-fn as_rgb(p: &Plane) -> Cow<'_, Plane> {
+pub(crate) fn as_rgb(p: &Plane) -> Cow<'_, Plane> {
     if p.channels() == 3 {
         return Cow::Borrowed(p);
     }

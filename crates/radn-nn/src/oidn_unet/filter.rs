@@ -133,7 +133,7 @@ impl UnetFilter {
     }
 
     /// The planes the network reads, in order, with their processing.
-    fn planes<'a>(
+    pub(crate) fn planes<'a>(
         &self,
         images: &UnetImages<'a>,
     ) -> Result<Vec<(&'a Plane, Processing)>, FilterError> {
@@ -280,7 +280,12 @@ impl UnetFilter {
     }
 
     /// A tile's processed input: the frame's values inside the frame, zeros in its padding.
-    fn tile_input(&self, planes: &[(&Plane, Processing)], tile: &Tile, scale: f32) -> Blocked {
+    pub(crate) fn tile_input(
+        &self,
+        planes: &[(&Plane, Processing)],
+        tile: &Tile,
+        scale: f32,
+    ) -> Blocked {
         let [x0, y0, x1, y1] = tile.buffer;
         let (tw, th) = (x1 - x0, y1 - y0);
         let mut m = Blocked::bordered_in(&self.scratch, 3 * planes.len(), th, tw);
@@ -309,7 +314,7 @@ impl UnetFilter {
     }
 
     /// Copies a tile's core from the network's output into the frame, mapped back to linear.
-    fn tile_output(&self, result: &Blocked, tile: &Tile, scale: f32, out: &mut Plane) {
+    pub(crate) fn tile_output(&self, result: &Blocked, tile: &Tile, scale: f32, out: &mut Plane) {
         let [x0, y0, _, _] = tile.buffer;
         let [xa, ya, xb, yb] = tile.core;
         let proc_ = self.main_processing();

@@ -13,8 +13,11 @@ pub mod import;
 pub mod library;
 pub mod store;
 pub mod temporal;
+pub mod temporal_filter;
+pub mod temporal_store;
 pub mod transfer;
 pub mod tza;
+pub mod window_denoiser;
 
 use burn::module::{Module, Param};
 use burn::nn::conv::{Conv2d, Conv2dConfig};

@@ -133,6 +133,45 @@ impl TemporalUnet {
         })
     }
 
+    /// The network with every gate set to `value` (a converted network whose blocks count
+    /// before any training, for tests of the paths that run it).
+    pub fn with_gates(mut self, value: f32) -> Self {
+        for b in &mut self.temporal.blends {
+            let device = b.gate.val().device();
+            let c = b.gate.val().dims()[0];
+            b.gate = Param::from_tensor(Tensor::full([c], value, &device));
+        }
+        self
+    }
+
+    /// The network with every block's weight-predictor bias set to `bias` (a large value
+    /// makes each block a plain robust average of the other frames: a fixed temporal blend to
+    /// compare a trained one with).
+    pub fn with_blend_bias(mut self, bias: f32) -> Self {
+        for b in &mut self.temporal.blends {
+            b.ra = b.ra.clone().with_weight_bias(bias);
+        }
+        self
+    }
+
+    /// Each blended level with its block and its gate's values (for the CPU path).
+    pub fn blends(&self) -> Vec<(usize, &RobustAverage, Vec<f32>)> {
+        self.config
+            .levels
+            .iter()
+            .zip(&self.temporal.blends)
+            .map(|(&l, b)| {
+                let gate = b
+                    .gate
+                    .val()
+                    .into_data()
+                    .try_to_vec::<f32>()
+                    .expect("f32 gates");
+                (l, &b.ra, gate)
+            })
+            .collect()
+    }
+
     /// Where the network blends its window.
     pub fn config(&self) -> &TemporalConfig {
         &self.config

@@ -24,6 +24,8 @@ pub enum Method {
     Classic,
     /// OIDN's U-Net on each frame alone, run by radn (no temporal step, no OIDN library).
     Spatial,
+    /// OIDN's U-Net converted into the spatio-temporal network (--model FILE, from radn train).
+    Temporal,
 }
 
 /// Storage type of denoised channels.
@@ -79,7 +81,7 @@ pub struct Args {
     #[command(flatten)]
     pub channels: ChannelArgs,
 
-    /// network, classic (non-neural) or spatial (OIDN's U-Net per frame).
+    /// network, classic (non-neural), spatial (OIDN's U-Net per frame) or temporal (the converted U-Net).
     #[arg(
         long,
         value_enum,
@@ -203,6 +205,20 @@ pub fn run(a: Args) -> Result<()> {
             let d = crate::model::spatial(a.model.as_deref(), a.prefilter)?;
             println!("radn: spatial path, per frame: {}", d.summary());
             reader = reader.per_frame(Requirements::AUXILIARIES);
+            (Box::new(d), None, None)
+        }
+        Method::Temporal => {
+            if matches!(&a.guide, GuideRequest::Given(g) if g.is_some()) {
+                bail!("--guide steers a guided network; --method temporal reads no guide");
+            }
+            if a.device.is_gpu() {
+                bail!("--device {}: --method temporal runs on the CPU", a.device);
+            }
+            let Some(path) = a.model.as_deref() else {
+                bail!("--method temporal needs --model FILE (a model radn train wrote)");
+            };
+            let d = crate::model::temporal(path)?;
+            println!("radn: temporal U-Net path: {}", d.summary());
             (Box::new(d), None, None)
         }
         Method::Network => {

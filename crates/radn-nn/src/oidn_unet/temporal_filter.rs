@@ -1,0 +1,243 @@
+//! Running a converted U-Net ([`TemporalUnet`]) over an aligned window on the CPU kernels:
+//! per tile, each frame's processed input goes through the U-Net's encoder, each blended
+//! level's Robust Average block runs over the window's maps and its result enters the centre
+//! frame's through the gate, and the decoder runs once, on the centre's levels. The same
+//! computation as [`TemporalUnet::forward`] with no motion (the window is aligned already).
+
+use radn_core::image::plane::Plane;
+
+use crate::model::ra_block::RobustAverage;
+use crate::oidn_unet::cpu::blocked::Blocked;
+use crate::oidn_unet::filter::{FilterError, Tile, UnetFilter, UnetImages};
+use crate::oidn_unet::temporal::TemporalUnet;
+
+/// One blended level on the host: its block and its gate's per-channel values.
+struct HostBlend {
+    level: usize,
+    ra: RobustAverage,
+    gate: Vec<f32>,
+}
+
+/// A converted U-Net's weights ready to run on aligned windows.
+pub struct TemporalFilter {
+    filter: UnetFilter,
+    blends: Vec<HostBlend>,
+    frames: usize,
+}
+
+impl TemporalFilter {
+    /// Packs `net`'s U-Net for the CPU kernels and keeps its blocks and gates.
+    pub fn new(net: &TemporalUnet) -> Self {
+        Self {
+            filter: UnetFilter::new(&net.unet),
+            blends: net
+                .blends()
+                .into_iter()
+                .map(|(level, ra, gate)| HostBlend {
+                    level,
+                    ra: ra.clone(),
+                    gate,
+                })
+                .collect(),
+            frames: net.config().frames,
+        }
+    }
+
+    /// Frames per window.
+    pub fn frames(&self) -> usize {
+        self.frames
+    }
+
+    /// The per-frame U-Net (its configuration, exposure and tiles).
+    pub fn unet(&self) -> &UnetFilter {
+        &self.filter
+    }
+
+    /// Denoises the centre of `window` (one set of images per frame, aligned to the centre,
+    /// all of one size) at input scale `scale`, in tiles of at most `budget` pixels: the
+    /// network's output as an RGB plane of the frame's size.
+    pub fn run(
+        &self,
+        window: &[UnetImages],
+        scale: f32,
+        budget: usize,
+    ) -> Result<Plane, FilterError> {
+        assert_eq!(
+            window.len(),
+            self.frames,
+            "a window of the network's length"
+        );
+        let planes = window
+            .iter()
+            .map(|images| self.filter.planes(images))
+            .collect::<Result<Vec<_>, _>>()?;
+        let (w, h) = (planes[0][0].0.width(), planes[0][0].0.height());
+        if planes
+            .iter()
+            .any(|p| p[0].0.width() != w || p[0].0.height() != h)
+        {
+            return Err(FilterError::Shape(
+                "the window's frames differ in size".into(),
+            ));
+        }
+        let mut out = Plane::zeros(w, h, 3);
+        let mut tiles = self.filter.tiles_within(w, h, budget);
+        tiles.sort_by_key(|t| std::cmp::Reverse(t.pixels()));
+        for tile in tiles {
+            let levels: Vec<Vec<Blocked>> = planes
+                .iter()
+                .map(|p| self.filter.encode(self.filter.tile_input(p, &tile, scale)))
+                .collect();
+            let result = self.filter.decode(self.blend(levels));
+            self.filter.tile_output(&result, &tile, scale, &mut out);
+            self.filter.scratch().recycle(result);
+        }
+        self.filter.scratch().trim();
+        Ok(out)
+    }
+
+    /// The window's encoder levels (one list per frame) blended into the centre frame's.
+    fn blend(&self, mut levels: Vec<Vec<Blocked>>) -> Vec<Blocked> {
+        let t = self.frames;
+        let scratch = self.filter.scratch();
+        for b in &self.blends {
+            let maps: Vec<&Blocked> = levels.iter().map(|f| &f[b.level]).collect();
+            let (c, hh, ww) = (maps[0].channels(), maps[0].height(), maps[0].width());
+            let plane = hh * ww;
+            let mut stacked = Vec::with_capacity(t * c * plane);
+            for m in &maps {
+                stacked.extend(m.to_planar());
+            }
+            let averaged = b.ra.forward_on_host(&stacked, [t, c, hh, ww]);
+            let centre = &stacked[t / 2 * c * plane..][..c * plane];
+            let blended_centre = &averaged[t / 2 * c * plane..][..c * plane];
+            let mut mixed = vec![0.0f32; c * plane];
+            for ch in 0..c {
+                let g = b.gate[ch];
+                let range = ch * plane..(ch + 1) * plane;
+                for ((o, &h), &a) in mixed[range.clone()]
+                    .iter_mut()
+                    .zip(&centre[range.clone()])
+                    .zip(&blended_centre[range])
+                {
+                    *o = h + (a - h) * g;
+                }
+            }
+            let old = std::mem::replace(
+                &mut levels[t / 2][b.level],
+                Blocked::from_planar(&mixed, c, hh, ww),
+            );
+            scratch.recycle(old);
+        }
+        let centre = levels.swap_remove(t / 2);
+        for frame in levels {
+            for m in frame {
+                scratch.recycle(m);
+            }
+        }
+        centre
+    }
+
+    /// The tiles a `w × h` window runs in within `budget` pixels.
+    pub fn tiles_within(&self, w: usize, h: usize, budget: usize) -> Vec<Tile> {
+        self.filter.tiles_within(w, h, budget)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::oidn_unet::temporal::TemporalConfig;
+    use crate::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
+    use burn::tensor::{Device, Tensor, TensorData};
+
+    fn plane(w: usize, h: usize, seed: usize, scale: f32) -> Plane {
+        Plane::from_fn(w, h, 3, |x, y, c| {
+            let i = (x * 7 + y * 13 + c * 5 + seed * 11) % 23;
+            scale * (0.1 + i as f32 / 23.0)
+        })
+    }
+
+    /// The CPU path equals burn's forward of the same network (gates open, so the blocks'
+    /// weights count), whole and in tiles.
+    #[test]
+    fn the_cpu_path_equals_burns_forward() {
+        let device = Device::flex();
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
+        let unet = crate::oidn_unet::store::load(&path, &device).unwrap();
+        device.seed(5);
+        let net = TemporalUnet::convert(
+            unet,
+            TemporalConfig {
+                frames: 3,
+                levels: vec![0, 1, 4],
+            },
+            &device,
+        )
+        .unwrap()
+        .with_gates(0.7);
+        let (w, h) = (40, 36);
+        let colors: Vec<Plane> = (0..3).map(|k| plane(w, h, k, 2.0)).collect();
+        let albedo: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect();
+        let normal: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect();
+        let window: Vec<UnetImages> = (0..3)
+            .map(|k| UnetImages {
+                color: Some(&colors[k]),
+                albedo: Some(&albedo[k]),
+                normal: Some(&normal[k]),
+            })
+            .collect();
+        let filter = TemporalFilter::new(&net);
+        let scale = filter.unet().autoexposure(&colors[1]);
+        let whole = filter.run(&window, scale, usize::MAX).unwrap();
+        // burn: the processed window, padded to 48×48 with zeros as the filter pads
+        let (pw, ph) = (48, 48);
+        let mut x = vec![0.0f32; 3 * 9 * ph * pw];
+        for k in 0..3 {
+            for (j, (p, proc_)) in [
+                (&colors[k], HDR_BEAUTY),
+                (&albedo[k], AUX_ALBEDO),
+                (&normal[k], AUX_NORMAL),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                for c in 0..3 {
+                    for yy in 0..h {
+                        for xx in 0..w {
+                            x[((k * 9 + j * 3 + c) * ph + yy) * pw + xx] =
+                                proc_.input(p.get(xx, yy, c), scale);
+                        }
+                    }
+                }
+            }
+        }
+        let x: Tensor<4> = Tensor::from_data(TensorData::new(x, [3, 9, ph, pw]), &device);
+        let y = net
+            .forward(x, None)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let mut worst = 0.0f32;
+        for c in 0..3 {
+            for yy in 0..h {
+                for xx in 0..w {
+                    let want = HDR_BEAUTY.output(y[(c * ph + yy) * pw + xx], scale);
+                    worst = worst.max((whole.get(xx, yy, c) - want).abs());
+                }
+            }
+        }
+        assert!(worst < 1e-4, "largest difference {worst}");
+        // the gates matter: closed, the result is the per-frame U-Net's and differs
+        let closed = TemporalFilter::new(&net.clone().with_gates(0.0));
+        let per_frame = closed.run(&window, scale, usize::MAX).unwrap();
+        let moved = (0..3)
+            .flat_map(|c| per_frame.channel(c).iter().zip(whole.channel(c)))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1e-3, "the open gates changed nothing ({moved})");
+        let single = closed.unet().run(&window[1], Some(scale)).unwrap();
+        assert_eq!(per_frame.channel(0), single.channel(0));
+    }
+}

@@ -1,0 +1,109 @@
+//! `radn denoise --method temporal`: OIDN's U-Net converted into the spatio-temporal network,
+//! from a model file `radn train` writes, with no OIDN library. Closed gates give exactly the
+//! spatial method's result (the per-frame U-Net); open gates use the window; bad model
+//! choices are refused with a message.
+
+mod common;
+
+use std::path::Path;
+use std::process::Command;
+
+use radn_core::io::exr_file::ExrFile;
+use radn_nn::burn::tensor::Device;
+use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet};
+use radn_nn::oidn_unet::{store, temporal_store};
+
+const UNET: &str = "../../models/oidn-rt_hdr_alb_nrm.safetensors";
+
+/// A converted standard U-Net (blocks at every level) with every gate at `gate`.
+fn model(path: &Path, gate: f32) {
+    let device = Device::flex();
+    device.seed(7);
+    let net = TemporalUnet::convert(
+        store::load(Path::new(UNET), &device).unwrap(),
+        TemporalConfig {
+            frames: 5,
+            levels: vec![0, 1, 2, 3, 4],
+        },
+        &device,
+    )
+    .unwrap()
+    .with_gates(gate);
+    temporal_store::save(&net, path).unwrap();
+}
+
+/// Runs `radn denoise` on frames `frames` of the sample without any OIDN library.
+fn denoise(out: &Path, frames: &str, extra: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_radn"))
+        .env("RADN_OIDN_LIBRARY", "/nonexistent")
+        .args([
+            "--progress",
+            "off",
+            "denoise",
+            "-i",
+            "../../samples/cycles-sample/low/frame_####.exr",
+            "-o",
+        ])
+        .arg(out.join("frame_####.exr"))
+        .args(["--frames", frames])
+        .args(extra)
+        .output()
+        .unwrap()
+}
+
+fn beauty(dir: &Path, frame: usize) -> radn_core::Plane {
+    common::beauty_rgb(&ExrFile::read(dir.join(format!("frame_{frame:04}.exr"))).unwrap())
+}
+
+#[test]
+fn closed_gates_give_the_spatial_result_and_open_ones_use_the_window() {
+    let d = tempfile::tempdir().unwrap();
+    let (closed, open) = (d.path().join("closed.st"), d.path().join("open.st"));
+    model(&closed, 0.0);
+    model(&open, 0.5);
+    let out = |name: &str| d.path().join(name);
+    let ok = |r: std::process::Output| {
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        String::from_utf8_lossy(&r.stdout).into_owned()
+    };
+    ok(denoise(&out("spatial"), "1-3", &["--method", "spatial"]));
+    let said = ok(denoise(
+        &out("closed"),
+        "1-3",
+        &["--method", "temporal", "--model", closed.to_str().unwrap()],
+    ));
+    assert!(said.contains("temporal U-Net path"), "{said}");
+    ok(denoise(
+        &out("open"),
+        "1-3",
+        &["--method", "temporal", "--model", open.to_str().unwrap()],
+    ));
+    for frame in 1..=3 {
+        let s = beauty(&out("spatial"), frame);
+        let c = beauty(&out("closed"), frame);
+        let o = beauty(&out("open"), frame);
+        for ch in 0..3 {
+            assert_eq!(s.channel(ch), c.channel(ch), "frame {frame} channel {ch}");
+        }
+        let moved = (0..3)
+            .flat_map(|ch| s.channel(ch).iter().zip(o.channel(ch)))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1e-3, "frame {frame}: open gates changed nothing");
+        assert!(o.data().iter().all(|v| v.is_finite()));
+    }
+}
+
+#[test]
+fn the_temporal_method_needs_a_converted_model() {
+    let d = tempfile::tempdir().unwrap();
+    let r = denoise(d.path(), "1-2", &["--method", "temporal"]);
+    assert!(!r.status.success());
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(e.contains("--method temporal needs --model"), "{e}");
+    let r = denoise(d.path(), "1-2", &["--method", "temporal", "--model", UNET]);
+    assert!(!r.status.success());
+    let e = String::from_utf8_lossy(&r.stderr);
+    assert!(e.contains("not a converted OIDN U-Net"), "{e}");
+    assert!(std::fs::read_dir(d.path()).unwrap().next().is_none());
+}
