@@ -323,8 +323,10 @@ pub fn prepare(
                     opts.tile
                 )));
             }
+            // a level rendered for some frames only (a split's `ref/`) targets those
             let pseudo_frame = pseudo
                 .as_ref()
+                .filter(|p| p[k].exists())
                 .map(|p| pseudo_reader.read(&p[k]).map(|r| r.0))
                 .transpose()?;
             let mut targets: Vec<Option<&[f32]>> = inputs

@@ -27,7 +27,7 @@ use radn_nn::oidn_unet::{store, temporal_store};
 use radn_nn::{NnError, Result};
 
 use crate::checkpoint::{checkpoint_files, remove_other_checkpoints, write_checkpoint};
-use crate::dataset::{SplitMix, Tile, TileDataset};
+use crate::dataset::{SplitMix, Tile, TileDataset, TARGET_LEVELS};
 
 /// The model file (`radn denoise --method temporal --model`) of the best validation so far.
 pub const BEST_MODEL: &str = "best.safetensors";
@@ -45,6 +45,34 @@ pub enum TrainedLayers {
     TemporalAndDecoder,
     /// Everything.
     All,
+}
+
+/// What a fine-tune's training loss compares, in which space.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum FinetuneLoss {
+    /// L1 in the network's PU space, as OIDN trained it on clean references. Against noisy
+    /// targets it fits their median, darker than their mean for Monte Carlo noise.
+    PuL1,
+    /// Noise2Noise's HDR loss: squared error in linear space relative to the prediction's own
+    /// square (held constant) plus 0.01. Its expectation over a noisy target is least at the
+    /// target's mean, so noisy targets do not bias the result.
+    #[default]
+    RelativeL2,
+}
+
+impl FinetuneLoss {
+    /// The loss of `prediction` against `target` (both network values, PU space).
+    pub fn of(self, prediction: Tensor<4>, target: Tensor<4>) -> Tensor<1> {
+        match self {
+            FinetuneLoss::PuL1 => (prediction - target).abs().mean(),
+            FinetuneLoss::RelativeL2 => {
+                let (f, t) = (pu_to_linear(prediction), pu_to_linear(target));
+                let scale = f.clone().detach().powi_scalar(2) + 0.01;
+                ((f - t).powi_scalar(2) / scale).mean()
+            }
+        }
+    }
 }
 
 /// A fine-tune's settings (TOML; paths relative to the file).
@@ -92,6 +120,9 @@ pub struct FinetuneConfig {
     /// the same target; off: every window is the whole window.
     #[serde(default = "default_true")]
     pub temporal_loss: bool,
+    /// The training loss.
+    #[serde(default)]
+    pub loss: FinetuneLoss,
 }
 
 fn default_true() -> bool {
@@ -169,6 +200,8 @@ pub struct Finetune {
     pub state: FinetuneState,
     train: TileDataset,
     val: TileDataset,
+    /// The validation tiles and the target level each is scored against.
+    val_plan: Vec<(usize, usize)>,
 }
 
 /// One window of a batch: tile, input and target levels, crop corner, and which of the tile's
@@ -219,6 +252,7 @@ impl Finetune {
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;
+        let val_plan = validation_plan(&val, config.val_tiles)?;
         let state_path = out.join("state.json");
         let mut run = Self {
             optim: AdamConfig::new().with_epsilon(config.adam_epsilon).init(),
@@ -230,6 +264,7 @@ impl Finetune {
             net,
             train,
             val,
+            val_plan,
         };
         if resume && state_path.exists() {
             let load = |path: &Path, e: String| NnError::Load {
@@ -320,7 +355,10 @@ impl Finetune {
     pub fn step(&mut self) -> Result<f64> {
         let plan = self.plan(self.state.step);
         let b = batch(&self.train, &plan, self.config.crop, &self.device)?;
-        let loss = (self.net.forward(b.window, None) - b.target).abs().mean();
+        let loss = self
+            .config
+            .loss
+            .of(self.net.forward(b.window, None), b.target);
         let value = loss.clone().into_scalar::<f32>() as f64;
         if !value.is_finite() {
             return Err(NnError::Config(format!(
@@ -340,8 +378,9 @@ impl Finetune {
         Ok(value)
     }
 
-    /// The mean validation loss (PU space) on the first `val_tiles` tiles, input `low`
-    /// against the cleanest target the tile has.
+    /// The mean validation loss (L1 in PU space) of input `low` on the validation tiles
+    /// ([`validation_plan`]): against their clean references where the set has them, else
+    /// against their 32-spp render.
     pub fn validate(&self) -> Result<f64> {
         Ok(self.validation()?.0)
     }
@@ -352,13 +391,13 @@ impl Finetune {
         // off the autodiff graph
         let plain = self.device.clone().without_autodiff();
         let net = self.net.valid();
-        let n = self.config.val_tiles.min(self.val.len()).max(1);
+        let n = self.val_plan.len();
         let (mut l1, mut psnr) = (0.0, 0.0);
-        for i in 0..n {
+        for &(tile, target) in &self.val_plan {
             let whole = Draw {
-                tile: i,
+                tile,
                 input: 2,
-                target: 0,
+                target,
                 corner: (0, 0),
                 frames: (0..self.val.manifest.frames).collect(),
             };
@@ -486,6 +525,34 @@ fn window_frames(t: usize, term: usize, earlier: bool) -> Vec<usize> {
         .collect()
 }
 
+/// The first `n` validation tiles and the target each is scored against: the tiles with a
+/// clean reference (the pseudo-reference slot, e.g. `radn prepare --pseudo ref`) against it
+/// when the set has any, else the first tiles against their 32-spp render (itself noisy).
+fn validation_plan(val: &TileDataset, n: usize) -> Result<Vec<(usize, usize)>> {
+    let clean = TARGET_LEVELS.len() - 1;
+    let mut plan = Vec::new();
+    if val.manifest.with_pseudo > 0 {
+        for i in 0..val.len() {
+            if plan.len() == n {
+                break;
+            }
+            if val.get(i)?.targets[clean].is_some() {
+                plan.push((i, clean));
+            }
+        }
+    }
+    if plan.is_empty() {
+        plan = (0..n.min(val.len()).max(1)).map(|i| (i, 0)).collect();
+    }
+    Ok(plan)
+}
+
+/// The HDR beauty's network values (PU) as scaled linear values, in tensor operations so that
+/// a loss can be taken in linear space.
+fn pu_to_linear(x: Tensor<4>) -> Tensor<4> {
+    HDR_BEAUTY.transfer.inverse_tensor(x)
+}
+
 /// The temporal blends' optimizer state of the checkpoint of `step`.
 fn temporal_optimizer_file(out: &Path, step: usize) -> PathBuf {
     out.join(format!("temporal-optimizer-{step:07}.bpk"))
@@ -572,6 +639,56 @@ fn batch(set: &TileDataset, plan: &[Draw], crop: usize, device: &Device) -> Resu
 #[cfg(test)]
 mod tests {
     use super::window_frames;
+
+    /// Against noisy targets (a skewed distribution, as Monte Carlo estimates are), training
+    /// with the relative L2 loss settles at the targets' mean (its gradient is zero there);
+    /// with PU-space L1 near their median, well below it.
+    #[test]
+    fn relative_l2_settles_at_the_mean_of_noisy_targets_and_pu_l1_below_it() {
+        use super::{FinetuneLoss, HDR_BEAUTY};
+        use burn::tensor::{Device, Tensor, TensorData};
+        let device = Device::flex().autodiff();
+        // exponential samples of mean 1 (a quantile grid), as linear values
+        let n = 4096;
+        let samples: Vec<f32> = (0..n)
+            .map(|i| -(1.0 - (i as f32 + 0.5) / n as f32).ln())
+            .collect();
+        let mean = samples.iter().sum::<f32>() / n as f32;
+        let pu = |v: &[f32]| -> Tensor<4> {
+            let x = v.iter().map(|&y| HDR_BEAUTY.input(y, 1.0)).collect();
+            Tensor::from_data(TensorData::new(x, [1, 1, 64, 64]), &device)
+        };
+        let target = pu(&samples);
+        // the loss's slope with respect to a constant prediction of linear value `c`
+        let slope = |loss: FinetuneLoss, c: f32| -> f32 {
+            let x = pu(&vec![c; n]).require_grad();
+            let grads = loss.of(x.clone(), target.clone()).backward();
+            x.grad(&grads).unwrap().sum().into_scalar::<f32>()
+        };
+        // where gradient descent settles: the slope's zero, by bisection
+        let settles = |loss: FinetuneLoss| -> f32 {
+            let (mut lo, mut hi) = (0.05f32, 3.0f32);
+            assert!(slope(loss, lo) < 0.0 && slope(loss, hi) > 0.0);
+            for _ in 0..30 {
+                let mid = 0.5 * (lo + hi);
+                if slope(loss, mid) < 0.0 {
+                    lo = mid;
+                } else {
+                    hi = mid;
+                }
+            }
+            lo
+        };
+        let (l2, l1) = (
+            settles(FinetuneLoss::RelativeL2),
+            settles(FinetuneLoss::PuL1),
+        );
+        assert!(
+            (l2 - mean).abs() < 1e-3 * mean,
+            "relative L2 settles at {l2}, mean {mean}"
+        );
+        assert!(l1 < 0.75 * mean, "PU L1 settles at {l1}, mean {mean}");
+    }
 
     #[test]
     fn the_temporal_terms_are_the_papers_pairs_without_the_centre() {

@@ -144,16 +144,6 @@ impl TemporalUnet {
         self
     }
 
-    /// The network with every block's weight-predictor bias set to `bias` (a large value
-    /// makes each block a plain robust average of the other frames: a fixed temporal blend to
-    /// compare a trained one with).
-    pub fn with_blend_bias(mut self, bias: f32) -> Self {
-        for b in &mut self.temporal.blends {
-            b.ra = b.ra.clone().with_weight_bias(bias);
-        }
-        self
-    }
-
     /// Each blended level with its block and its gate's values (for the CPU path).
     pub fn blends(&self) -> Vec<(usize, &RobustAverage, Vec<f32>)> {
         self.config

@@ -6,6 +6,8 @@
 //! NaN becomes 0 everywhere. The curves' constants are OIDN's (`core/color.h`), written as
 //! OIDN writes them (the nearest f32 is what both use).
 
+use burn::tensor::Tensor;
+
 /// A transfer function between linear values and the network's.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Transfer {
@@ -105,6 +107,30 @@ impl Transfer {
     }
 }
 
+impl Transfer {
+    /// [`Transfer::inverse`] as tensor operations (differentiable), for losses in linear space.
+    pub fn inverse_tensor(self, x: Tensor<4>) -> Tensor<4> {
+        match self {
+            Transfer::Linear => x,
+            Transfer::Srgb => {
+                use srgb::*;
+                let low = x.clone() / A;
+                let high = ((x.clone() - D) / B).clamp_min(0.0).powf_scalar(1.0 / C);
+                high.mask_where(x.lower_equal_elem(X0), low)
+            }
+            Transfer::Pu => {
+                use pu::*;
+                let x = x * pu_norm();
+                let low = x.clone() / A;
+                let mid = ((x.clone() - D) / B).clamp_min(0.0).powf_scalar(1.0 / C);
+                let high = ((x.clone() - G) / E).exp() - F;
+                high.mask_where(x.clone().lower_equal_elem(X1), mid)
+                    .mask_where(x.lower_equal_elem(X0), low)
+            }
+        }
+    }
+}
+
 /// How one input image is prepared: its transfer, whether it is signed (normals) and whether
 /// it is HDR (unbounded above) and scaled by the input scale.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -178,6 +204,25 @@ pub const AUX_NORMAL: Processing = Processing {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn the_tensor_inverse_is_the_scalar_inverse() {
+        use burn::tensor::{Device, TensorData};
+        let values: Vec<f32> = (0..400).map(|i| (i as f32 / 399.0).powi(3) * 1.2).collect();
+        let device = Device::flex();
+        for t in [Transfer::Linear, Transfer::Srgb, Transfer::Pu] {
+            let x: Tensor<4> =
+                Tensor::from_data(TensorData::new(values.clone(), [1, 1, 20, 20]), &device);
+            let got = t.inverse_tensor(x).into_data().try_to_vec::<f32>().unwrap();
+            for (&v, &g) in values.iter().zip(&got) {
+                let want = t.inverse(v);
+                assert!(
+                    (g - want).abs() <= 1e-5 * want.abs().max(1.0),
+                    "{t:?}({v}) = {want}, tensor {g}"
+                );
+            }
+        }
+    }
 
     #[test]
     fn the_curves_invert_and_pu_reaches_one_at_the_largest_half() {

@@ -27,7 +27,8 @@ pub struct Args {
     #[arg(long, default_value_t = 1)]
     pub seed: u64,
     /// The level folder of the pseudo-reference targets: `pseudo` (classic, `radn pseudoref`)
-    /// or `oidn` (the datagen teacher render denoised by Intel Open Image Denoise).
+    /// or `oidn` (the datagen teacher render denoised by Intel Open Image Denoise), or `ref`
+    /// (a split's high-spp references: windows of the frames that have one get it as target).
     #[arg(long, default_value = radn_train::dataset::DEFAULT_PSEUDO_LEVEL)]
     pub pseudo: String,
     /// Also store each input frame's guide, for training a guided network (`oidn`: Intel
