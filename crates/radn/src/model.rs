@@ -1,6 +1,6 @@
 //! The network a command runs: a file the user names, or one of the models compiled in; and
-//! which path `radn denoise` takes when the guide is left to it (the guided path wherever an
-//! OIDN library can be found).
+//! which path `radn denoise` takes when the guide is left to it (the guided path, its guides
+//! from an OIDN library where one opens, else from radn's compiled-in copies of OIDN's networks).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -32,6 +32,10 @@ const UNET_BEAUTY: &[u8] = include_bytes!("../../../models/oidn-rt_hdr_alb_nrm.s
 /// OIDN's large clean-auxiliary U-Net (`rt_hdr_calb_cnrm_large`), for `--prefilter`.
 const UNET_BEAUTY_CLEAN: &[u8] =
     include_bytes!("../../../models/oidn-rt_hdr_calb_cnrm_large.safetensors");
+/// OIDN's colour-only U-Net (`rt_hdr`), for guides of frames without auxiliaries.
+const UNET_BEAUTY_PLAIN: &[u8] = include_bytes!("../../../models/oidn-rt_hdr.safetensors");
+/// OIDN's albedo-only U-Net (`rt_hdr_alb`), for guides of frames without normals.
+const UNET_BEAUTY_ALBEDO: &[u8] = include_bytes!("../../../models/oidn-rt_hdr_alb.safetensors");
 /// OIDN's large albedo prefilter (`rt_alb_large`).
 const UNET_ALBEDO: &[u8] = include_bytes!("../../../models/oidn-rt_alb_large.safetensors");
 /// OIDN's large normal prefilter (`rt_nrm_large`).
@@ -77,6 +81,32 @@ pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::Temp
         TemporalFilter::new(&net),
         path.display().to_string(),
     ))
+}
+
+/// OIDN's guides made by radn's compiled-in copies of OIDN's high-quality networks: the guided
+/// path where no OIDN library is installed.
+pub fn builtin_guides() -> Result<OidnGuides> {
+    use radn_nn::oidn_unet::guide_filters::{BeautyModels, BuiltinGuideFilters};
+    use radn_nn::oidn_unet::{filter::UnetFilter, store};
+    let device = Device::flex();
+    let net = |bytes: &[u8], name: &str| -> Result<UnetFilter> {
+        Ok(UnetFilter::new(&store::load_bytes(
+            bytes,
+            Path::new(&format!("<built-in {name}>")),
+            &device,
+        )?))
+    };
+    let filters = BuiltinGuideFilters::new(
+        BeautyModels {
+            plain: net(UNET_BEAUTY_PLAIN, "rt_hdr")?,
+            albedo: net(UNET_BEAUTY_ALBEDO, "rt_hdr_alb")?,
+            noisy_aux: net(UNET_BEAUTY, "rt_hdr_alb_nrm")?,
+            clean_aux: net(UNET_BEAUTY_CLEAN, "rt_hdr_calb_cnrm_large")?,
+        },
+        net(UNET_ALBEDO, "rt_alb_large")?,
+        net(UNET_NORMAL, "rt_nrm_large")?,
+    );
+    Ok(OidnGuides::with_filters(Box::new(filters)))
 }
 
 /// Loads `path`, or the compiled-in default model when none is given.
@@ -143,14 +173,11 @@ pub struct ChosenPath {
     pub summary: String,
 }
 
-/// The hint a run without OIDN gives: how to get the guided path.
-pub const OIDN_HINT: &str = "the guided path (better) needs Intel Open Image Denoise 2.x: \
-     `pip install pyoidn` or Blender's `bpy`, a Blender on PATH, or RADN_OIDN_LIBRARY";
-
 /// Chooses the network and its guide: a given guide is taken as given (with the built-in
 /// model that reads it, unless `model` names one); `auto` takes the guided path when the
-/// model reads a guide or, without `model`, whenever an OIDN library opens, and the unguided
-/// model otherwise. The model and the guide are checked against each other.
+/// model reads a guide or no `model` is named (OIDN's guides come from its library where one
+/// opens, else from radn's copies of its networks), and the unguided model otherwise. The
+/// model and the guide are checked against each other.
 pub fn choose_path(
     model: Option<&Path>,
     request: &GuideRequest,
@@ -176,17 +203,11 @@ pub fn choose_path(
                 let oidn = open_oidn_for(&guide, oidn_threads, device)?;
                 (d, guide, oidn)
             }
-            None => match open_oidn(oidn_threads, device) {
-                Ok(o) => (
-                    load_for(None, true, &dev)?,
-                    GuideChoice::Oidn,
-                    Some(Arc::new(o)),
-                ),
-                Err(e) => {
-                    tracing::debug!("no OIDN: {e}");
-                    (load_for(None, false, &dev)?, GuideChoice::None, None)
-                }
-            },
+            None => (
+                load_for(None, true, &dev)?,
+                GuideChoice::Oidn,
+                Some(Arc::new(open_oidn(oidn_threads, device)?)),
+            ),
         },
     };
     let label = label_for(model, guide.is_some());
@@ -196,9 +217,6 @@ pub fn choose_path(
             label.display(),
             o.describe()
         ),
-        (GuideChoice::None, _) if *request == GuideRequest::Auto && model.is_none() => {
-            format!("radn: unguided path: {}; {OIDN_HINT}", label.display())
-        }
         (GuideChoice::None, _) => format!("radn: unguided path: {}", label.display()),
         (GuideChoice::Denoised, _) => format!(
             "radn: guided path: {} over the renderer's denoised layer",
@@ -231,15 +249,23 @@ fn open_oidn_for(
 }
 
 /// OIDN on the network's device: on a GPU run its CUDA device (the guides then cost the CPU
-/// nothing), falling back to the CPU with a warning where OIDN cannot use that GPU.
-fn open_oidn(threads: usize, device: ComputeDevice) -> radn_core::Result<OidnGuides> {
-    match device.into() {
+/// nothing), falling back to the CPU with a warning where OIDN cannot use that GPU; where no
+/// OIDN library opens, radn's compiled-in copies of its networks.
+fn open_oidn(threads: usize, device: ComputeDevice) -> Result<OidnGuides> {
+    let library = match device.into() {
         OidnDevice::Cpu => OidnGuides::new(threads),
         gpu => OidnGuides::on(gpu, threads).or_else(|e| {
             let cpu = OidnGuides::new(threads)?;
             tracing::warn!("{e}; OIDN's guides are made on the CPU instead");
             Ok(cpu)
         }),
+    };
+    match library {
+        Ok(o) => Ok(o),
+        Err(e) => {
+            tracing::debug!("no OIDN library ({e}): guides from radn's built-in networks");
+            builtin_guides()
+        }
     }
 }
 

@@ -7,6 +7,7 @@
 //! frame from the sequence's original input files, whatever pass is running).
 
 pub mod exposure;
+pub mod filters;
 pub mod oidn;
 mod oidn_library;
 pub mod oidn_settings;
@@ -22,6 +23,7 @@ use crate::io::frame::{Frame, FrameReader};
 use crate::run::row_store::RowStore;
 
 pub use exposure::ExposureBins;
+pub use filters::GuideFilters;
 pub use oidn::{Aux, GuideTimes, OidnDenoiser, OidnDevice, OidnError};
 pub use oidn_settings::{OidnQuality, OidnSettings, Prefilter};
 
@@ -66,10 +68,11 @@ impl GuideChoice {
     }
 }
 
-/// OIDN guides of a sequence: one device shared by every frame (one frame at a time; OIDN
-/// uses every thread it was given), computed from the original input files.
+/// OIDN guides of a sequence: one set of filters shared by every frame (one frame at a time;
+/// they use every thread they were given), computed from the original input files. The
+/// filters are OIDN's library or radn's own run of its networks ([`GuideFilters`]).
 pub struct OidnGuides {
-    denoiser: Mutex<OidnDenoiser>,
+    filters: Mutex<Box<dyn GuideFilters>>,
     settings: Mutex<OidnSettings>,
 }
 
@@ -95,10 +98,15 @@ impl OidnGuides {
             path: PathBuf::new(),
             detail: e.to_string(),
         })?;
-        Ok(Self {
-            denoiser: Mutex::new(d),
+        Ok(Self::with_filters(Box::new(d)))
+    }
+
+    /// Guides made by `filters` (radn's own run of OIDN's networks, where no library is).
+    pub fn with_filters(filters: Box<dyn GuideFilters>) -> Self {
+        Self {
+            filters: Mutex::new(filters),
             settings: Mutex::new(OidnSettings::default()),
-        })
+        }
     }
 
     /// Makes every later guide with `settings` (a guided model's recipe holds them).
@@ -111,32 +119,46 @@ impl OidnGuides {
         *lock(&self.settings)
     }
 
-    /// The library in use, for messages: "Intel Open Image Denoise 2.5.1 (PATH)".
+    /// The filters in use, for messages: "Intel Open Image Denoise 2.5.1 (PATH)", or radn's
+    /// own networks.
     pub fn describe(&self) -> String {
-        let d = lock(&self.denoiser);
-        let on = match d.device() {
-            OidnDevice::Cpu => String::new(),
-            gpu => format!(" on the {gpu}"),
-        };
-        format!(
-            "Intel Open Image Denoise {} ({}){on}",
-            d.version(),
-            d.library().display()
-        )
+        lock(&self.filters).describe()
     }
 
     /// The guide of `frame` (its beauty, albedo and normal as read from `path`).
     pub fn of_frame(&self, frame: &Frame, path: &Path) -> Result<Plane> {
         let settings = self.settings();
-        let mut d = lock(&self.denoiser);
-        let (guide, times) = d
-            .denoise_with(
-                &frame.color,
-                frame.albedo.as_ref(),
-                frame.normal.as_ref(),
-                &settings,
+        let mut d = lock(&self.filters);
+        let (color, albedo, normal) = (&frame.color, frame.albedo.as_ref(), frame.normal.as_ref());
+        // the auxiliaries prefiltered where the settings say, then the beauty (as OIDN's
+        // final-frame mode does)
+        let mut times = GuideTimes::default();
+        let (mut alb, mut nrm) = (None, None);
+        let q = settings.prefilter.quality();
+        if let Some(q) = q {
+            let started = Instant::now();
+            alb = albedo
+                .map(|a| d.prefilter(a, Aux::Albedo, q))
+                .transpose()
+                .map_err(|e| guide_error(path, e))?;
+            nrm = normal
+                .map(|n| d.prefilter(n, Aux::Normal, q))
+                .transpose()
+                .map_err(|e| guide_error(path, e))?;
+            times.prefilters = started.elapsed();
+        }
+        let started = Instant::now();
+        let guide = d
+            .beauty(
+                color,
+                alb.as_ref().or(albedo),
+                nrm.as_ref().or(normal),
+                settings.quality,
+                q.is_some(),
+                None,
             )
             .map_err(|e| guide_error(path, e))?;
+        times.beauty = started.elapsed();
         record(path, times);
         Ok(guide)
     }
@@ -193,9 +215,9 @@ impl OidnGuides {
             bins.add_rows(y0, &read(y0..(y0 + band).min(height))?.color);
         }
         let settings = self.settings();
-        let mut d = lock(&self.denoiser);
+        let mut d = lock(&self.filters);
         let halo = d
-            .tile_overlap(settings.quality)
+            .overlap(settings.quality)
             .map_err(|e| guide_error(path, e))?;
         // every band read with its halo (rows read, rows kept), starting on OIDN's 16-row
         // grid as the whole frame does (its network pools four times), all of one size but
@@ -211,8 +233,8 @@ impl OidnGuides {
                 (start..end, y0..(y0 + band).min(height))
             })
             .collect();
-        d.set_input_scale(Some(bins.exposure()));
-        d.set_max_memory_mb(Some(BAND_OIDN_MEMORY_MB));
+        let scale = bins.exposure();
+        d.bound_memory(Some(BAND_OIDN_MEMORY_MB));
         let result = (|| {
             let mut times = GuideTimes::default();
             // the prefiltered auxiliaries, one filter at a time
@@ -264,6 +286,7 @@ impl OidnGuides {
                         nrm.as_ref().filter(|_| alb.is_some()),
                         settings.quality,
                         settings.prefilter.quality().is_some(),
+                        Some(scale),
                     )
                     .map_err(|e| guide_error(path, e))?;
                 write(
@@ -275,8 +298,7 @@ impl OidnGuides {
             times.beauty = started.elapsed();
             Ok(times)
         })();
-        d.set_input_scale(None);
-        d.set_max_memory_mb(None);
+        d.bound_memory(None);
         record(path, result?);
         Ok(())
     }
@@ -291,7 +313,7 @@ fn lock<T>(m: &Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(|poisoned| poisoned.into_inner())
 }
 
-fn guide_error(path: &Path, e: OidnError) -> Error {
+fn guide_error(path: &Path, e: impl std::fmt::Display) -> Error {
     Error::Guide {
         path: path.to_path_buf(),
         detail: e.to_string(),

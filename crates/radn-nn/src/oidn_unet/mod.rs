@@ -9,6 +9,7 @@ pub mod cpu;
 pub mod denoiser;
 pub mod feature_warp;
 pub mod filter;
+pub mod guide_filters;
 pub mod import;
 pub mod library;
 pub mod store;
