@@ -123,6 +123,10 @@ pub struct FinetuneConfig {
     /// The training loss.
     #[serde(default)]
     pub loss: FinetuneLoss,
+    /// Alignment's colour term for the model's windows at inference
+    /// ([`TemporalConfig::color_confidence`], kept in the model file).
+    #[serde(default)]
+    pub color_confidence: Option<f32>,
 }
 
 fn default_true() -> bool {
@@ -249,6 +253,7 @@ impl Finetune {
         let temporal = TemporalConfig {
             frames: train.manifest.frames,
             levels: config.levels.clone(),
+            color_confidence: config.color_confidence,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;

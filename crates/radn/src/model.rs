@@ -79,6 +79,7 @@ pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::Temp
     let net = temporal_store::load(path, &Device::flex())?;
     Ok(TemporalDenoiser::new(
         TemporalFilter::new(&net),
+        net.config().color_confidence,
         path.display().to_string(),
     ))
 }

@@ -373,7 +373,11 @@ fn without_oidn_a_guide_quality_the_built_in_networks_lack_says_what_to_install(
         .unwrap();
     let err = String::from_utf8_lossy(&r.stderr);
     assert!(!r.status.success(), "{err}");
-    for needed in ["cycles-sample/low/frame_000", "quality 'fast'", "Intel Open Image Denoise"] {
+    for needed in [
+        "cycles-sample/low/frame_000",
+        "quality 'fast'",
+        "Intel Open Image Denoise",
+    ] {
         assert!(err.contains(needed), "'{needed}' missing from: {err}");
     }
     assert!(

@@ -24,6 +24,7 @@ fn model(path: &Path, gate: f32) {
         TemporalConfig {
             frames: 5,
             levels: vec![0, 1, 2, 3, 4],
+            color_confidence: None,
         },
         &device,
     )

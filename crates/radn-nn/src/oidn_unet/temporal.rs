@@ -17,12 +17,25 @@ use crate::oidn_unet::{EncoderLevels, OidnUnet};
 
 /// Where the converted network blends its window: the window's length and the encoder levels
 /// (0: the processed input, k: 1/2^k, the last: the bottleneck) that get a Robust Average block.
-#[derive(Clone, Debug, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Clone, Debug, PartialEq, Serialize, Deserialize)]
 pub struct TemporalConfig {
     /// Frames per window (odd; the paper's 5).
     pub frames: usize,
     /// Encoder levels with a Robust Average block, in increasing order.
     pub levels: Vec<usize>,
+    /// Tolerance of alignment's colour term for the windows the network runs on at inference
+    /// ([`radn_core::align::confidence::ConfidenceParams::color`]): the motion vectors follow
+    /// surfaces, so only the colour shows a shading change (a moving light or shadow) that the
+    /// blocks would otherwise average in; `None` leaves the term out.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub color_confidence: Option<f32>,
+}
+
+impl TemporalConfig {
+    /// The configuration as TOML (what model files keep).
+    pub fn to_toml(&self) -> String {
+        toml::to_string(self).expect("a temporal configuration serialises")
+    }
 }
 
 /// One level's temporal blend: a Robust Average block over the window's warped features and
@@ -252,6 +265,7 @@ mod tests {
             TemporalConfig {
                 frames: t,
                 levels: vec![1, 2, 3, 4],
+                color_confidence: None,
             },
             &device,
         )
@@ -297,9 +311,17 @@ mod tests {
     fn bad_configurations_are_refused() {
         let device = Device::flex();
         let bad = |frames, levels: Vec<usize>| {
-            TemporalUnet::convert(unet(&device), TemporalConfig { frames, levels }, &device)
-                .unwrap_err()
-                .to_string()
+            TemporalUnet::convert(
+                unet(&device),
+                TemporalConfig {
+                    frames,
+                    levels,
+                    color_confidence: None,
+                },
+                &device,
+            )
+            .unwrap_err()
+            .to_string()
         };
         assert!(bad(4, vec![1]).contains("odd"));
         assert!(bad(5, vec![5]).contains("levels 0 to 4"));
@@ -319,6 +341,7 @@ mod tests {
             TemporalConfig {
                 frames: t,
                 levels: vec![2, 4],
+                color_confidence: None,
             },
             &device,
         )

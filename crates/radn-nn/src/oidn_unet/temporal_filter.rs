@@ -172,6 +172,7 @@ mod tests {
             TemporalConfig {
                 frames: 3,
                 levels: vec![0, 1, 4],
+                color_confidence: None,
             },
             &device,
         )

@@ -25,7 +25,7 @@ pub fn save(net: &TemporalUnet, path: &Path) -> Result<()> {
         path: path.to_path_buf(),
         detail,
     };
-    let temporal = toml::to_string(net.config()).map_err(|e| err(e.to_string()))?;
+    let temporal = net.config().to_toml();
     radn_core::io::output::write_atomically_with(path, |_, tmp| {
         let mut store = SafetensorsStore::from_file(tmp)
             .metadata(FORMAT_KEY, FORMAT)
@@ -113,6 +113,7 @@ mod tests {
         let config = TemporalConfig {
             frames: 3,
             levels: vec![0, 2],
+            color_confidence: Some(0.6),
         };
         let net = TemporalUnet::convert(unet, config.clone(), &device).unwrap();
         // open the gates so the blocks' weights matter

@@ -25,12 +25,15 @@ pub struct TemporalDenoiser {
 }
 
 impl TemporalDenoiser {
-    /// Runs `filter` on windows aligned with radn's default alignment (the training tiles');
-    /// `name` labels the model in the run's summary.
-    pub fn new(filter: TemporalFilter, name: String) -> Self {
+    /// Runs `filter` on windows aligned with radn's default alignment (the training tiles')
+    /// and the colour term `color_confidence` (the model's); `name` labels the model in the
+    /// run's summary.
+    pub fn new(filter: TemporalFilter, color_confidence: Option<f32>, name: String) -> Self {
+        let mut align = AlignParams::default();
+        align.confidence.color = color_confidence;
         Self {
             filter,
-            align: AlignParams::default(),
+            align,
             name,
         }
     }

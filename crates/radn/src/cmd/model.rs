@@ -117,6 +117,30 @@ pub fn run(a: Args) -> Result<()> {
         );
         return Ok(());
     }
+    if radn_nn::oidn_unet::temporal_store::is_temporal_file(&file) {
+        if a.out.is_some() {
+            bail!(
+                "'{}' is a converted OIDN U-Net: it has no recipe to tune",
+                file.display()
+            );
+        }
+        let net = radn_nn::oidn_unet::temporal_store::load(&file, &device)?;
+        let gates: Vec<String> = net
+            .temporal
+            .openness()
+            .iter()
+            .map(|g| format!("{g:.3}"))
+            .collect();
+        println!(
+            "# {}\n# OIDN's U-Net converted into a spatio-temporal network (radn denoise \
+             --method temporal); gate openness per blended level: {}\n\n# window\n{}\n# U-Net\n{}",
+            file.display(),
+            gates.join(" "),
+            net.config().to_toml(),
+            net.unet.config().to_toml()
+        );
+        return Ok(());
+    }
     let mut model = radn_nn::model::store::load(&file, &device)?;
     let Some(out) = a.out else {
         println!(
