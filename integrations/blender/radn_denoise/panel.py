@@ -42,7 +42,7 @@ class RADN_PT_temporal_denoise(bpy.types.Panel):
                 box.label(text=text, icon="ERROR")
             box.operator("radn.enable_passes")
         if paths.blender_oidn_library() is None:
-            layout.label(text="Blender's OIDN not found: radn runs its unguided model", icon="ERROR")
+            layout.label(text="Blender's OIDN not found: radn uses its built-in copy of OIDN's networks", icon="INFO")
         job = operators.current
         row = layout.row()
         if job is not None and not job.done:
