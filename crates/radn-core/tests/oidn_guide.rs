@@ -9,7 +9,7 @@ use std::path::PathBuf;
 use std::process::Command;
 
 use radn_core::eval::metrics::psnr;
-use radn_core::guide::{OidnDenoiser, OidnDevice, OidnGuides};
+use radn_core::guide::{GuideFilters, OidnDenoiser, OidnDevice, OidnGuides, OidnSettings};
 use radn_core::io::frame::{FrameReader, Requirements};
 use radn_core::io::mapping::ChannelMapping;
 
@@ -227,12 +227,24 @@ fn images_copied_through_oidn_buffers_give_the_shared_images_result() {
     let mut d = OidnDenoiser::new(2).unwrap();
     let (f, _) = reader().read(&sample("low", 5)).unwrap();
     let shared = d
-        .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
-        .unwrap();
+        .denoise_frame(
+            &f.color,
+            f.albedo.as_ref(),
+            f.normal.as_ref(),
+            &OidnSettings::default(),
+        )
+        .unwrap()
+        .0;
     d.copy_images(true);
     let copied = d
-        .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
-        .unwrap();
+        .denoise_frame(
+            &f.color,
+            f.albedo.as_ref(),
+            f.normal.as_ref(),
+            &OidnSettings::default(),
+        )
+        .unwrap()
+        .0;
     assert_eq!(copied.data(), shared.data());
     assert!(psnr(&copied, &reference(5)).unwrap() > psnr(&f.color, &reference(5)).unwrap() + 6.0);
 }
@@ -247,12 +259,24 @@ fn oidn_on_a_gpu_agrees_with_the_cpu_or_says_why_it_cannot_run() {
         Ok(mut gpu) => {
             // a machine with an NVIDIA GPU: the same estimate within OIDN's GPU/CPU tolerance
             let on_gpu = gpu
-                .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
-                .unwrap();
+                .denoise_frame(
+                    &f.color,
+                    f.albedo.as_ref(),
+                    f.normal.as_ref(),
+                    &OidnSettings::default(),
+                )
+                .unwrap()
+                .0;
             let on_cpu = OidnDenoiser::new(2)
                 .unwrap()
-                .denoise(&f.color, f.albedo.as_ref(), f.normal.as_ref())
-                .unwrap();
+                .denoise_frame(
+                    &f.color,
+                    f.albedo.as_ref(),
+                    f.normal.as_ref(),
+                    &OidnSettings::default(),
+                )
+                .unwrap()
+                .0;
             let agree = psnr(&on_gpu, &on_cpu).unwrap();
             eprintln!("OIDN on the GPU against the CPU: {agree:.1} dB");
             assert!(agree > 45.0, "GPU and CPU guides differ: {agree:.1} dB");

@@ -384,7 +384,7 @@ impl Finetune {
     }
 
     /// The mean validation loss (L1 in PU space) of input `low` on the validation tiles
-    /// ([`validation_plan`]): against their clean references where the set has them, else
+    /// (`validation_plan`): against their clean references where the set has them, else
     /// against their 32-spp render.
     pub fn validate(&self) -> Result<f64> {
         Ok(self.validation()?.0)

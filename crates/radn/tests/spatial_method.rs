@@ -17,7 +17,7 @@ use common::{radn_ok, tall};
 use radn_core::io::exr_file::ExrFile;
 
 use radn_core::eval::metrics::psnr;
-use radn_core::guide::{OidnDenoiser, OidnSettings};
+use radn_core::guide::{GuideFilters, OidnDenoiser, OidnSettings};
 use radn_core::io::frame::{FrameReader, Requirements};
 use radn_core::io::mapping::ChannelMapping;
 
@@ -77,7 +77,7 @@ fn the_spatial_method_runs_without_a_library_and_equals_oidn() {
             .beauty(&f.color, a, n, radn_core::guide::OidnQuality::High, false)
             .unwrap();
         let prefiltered = oidn
-            .denoise_with(&f.color, a, n, &OidnSettings::default())
+            .denoise_frame(&f.color, a, n, &OidnSettings::default())
             .unwrap()
             .0;
         for (dir, want, what) in [

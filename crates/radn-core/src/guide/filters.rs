@@ -3,10 +3,12 @@
 //! which needs no library), so that [`super::OidnGuides`] makes whole-frame and band-by-band
 //! guides the same way over either.
 
+use std::time::Instant;
+
 use crate::image::plane::Plane;
 
-use super::oidn::{Aux, OidnDenoiser, OidnDevice};
-use super::oidn_settings::OidnQuality;
+use super::oidn::{Aux, GuideTimes, OidnDenoiser, OidnDevice};
+use super::oidn_settings::{OidnQuality, OidnSettings};
 
 /// OIDN's three RT filters as a guide uses them. Errors are one line, for the frame's message.
 pub trait GuideFilters: Send {
@@ -32,6 +34,42 @@ pub trait GuideFilters: Send {
     /// Bounds the filters' scratch memory while a frame goes band by band (`None`: their own
     /// choice again).
     fn bound_memory(&mut self, _mb: Option<usize>) {}
+
+    /// One whole frame's guide as `settings` say (OIDN's final-frame mode by default): the
+    /// albedo and normal prefiltered first where they ask, then the beauty on them at OIDN's
+    /// autoexposure; and the time each part took. A normal needs the albedo.
+    fn denoise_frame(
+        &mut self,
+        color: &Plane,
+        albedo: Option<&Plane>,
+        normal: Option<&Plane>,
+        settings: &OidnSettings,
+    ) -> Result<(Plane, GuideTimes), String> {
+        let mut times = GuideTimes::default();
+        let (mut alb, mut nrm) = (None, None);
+        let q = settings.prefilter.quality();
+        if let Some(q) = q {
+            let started = Instant::now();
+            alb = albedo
+                .map(|a| self.prefilter(a, Aux::Albedo, q))
+                .transpose()?;
+            nrm = normal
+                .map(|n| self.prefilter(n, Aux::Normal, q))
+                .transpose()?;
+            times.prefilters = started.elapsed();
+        }
+        let started = Instant::now();
+        let guide = self.beauty(
+            color,
+            alb.as_ref().or(albedo),
+            nrm.as_ref().or(normal),
+            settings.quality,
+            q.is_some(),
+            None,
+        )?;
+        times.beauty = started.elapsed();
+        Ok((guide, times))
+    }
 }
 
 impl GuideFilters for OidnDenoiser {

@@ -128,37 +128,14 @@ impl OidnGuides {
     /// The guide of `frame` (its beauty, albedo and normal as read from `path`).
     pub fn of_frame(&self, frame: &Frame, path: &Path) -> Result<Plane> {
         let settings = self.settings();
-        let mut d = lock(&self.filters);
-        let (color, albedo, normal) = (&frame.color, frame.albedo.as_ref(), frame.normal.as_ref());
-        // the auxiliaries prefiltered where the settings say, then the beauty (as OIDN's
-        // final-frame mode does)
-        let mut times = GuideTimes::default();
-        let (mut alb, mut nrm) = (None, None);
-        let q = settings.prefilter.quality();
-        if let Some(q) = q {
-            let started = Instant::now();
-            alb = albedo
-                .map(|a| d.prefilter(a, Aux::Albedo, q))
-                .transpose()
-                .map_err(|e| guide_error(path, e))?;
-            nrm = normal
-                .map(|n| d.prefilter(n, Aux::Normal, q))
-                .transpose()
-                .map_err(|e| guide_error(path, e))?;
-            times.prefilters = started.elapsed();
-        }
-        let started = Instant::now();
-        let guide = d
-            .beauty(
-                color,
-                alb.as_ref().or(albedo),
-                nrm.as_ref().or(normal),
-                settings.quality,
-                q.is_some(),
-                None,
+        let (guide, times) = lock(&self.filters)
+            .denoise_frame(
+                &frame.color,
+                frame.albedo.as_ref(),
+                frame.normal.as_ref(),
+                &settings,
             )
             .map_err(|e| guide_error(path, e))?;
-        times.beauty = started.elapsed();
         record(path, times);
         Ok(guide)
     }

@@ -13,17 +13,17 @@
 //! By default each frame is filtered as OIDN recommends for final frames: the albedo and the
 //! normal are denoised first, each by its own `RT` filter, and the beauty filter (HDR) then runs
 //! with `cleanAux` on. This is the "prefiltered" mode of `tools/datagen` (`radn_datagen oidn`),
-//! so the guides radn computes equal those of the training data. [`OidnSettings`] choose other
+//! so the guides radn computes equal those of the training data. [`OidnSettings`](super::OidnSettings) choose other
 //! qualities, or the noisy auxiliaries without prefilters.
 
 use std::ffi::{c_char, c_int, c_void, CStr, CString};
 use std::path::{Path, PathBuf};
-use std::time::{Duration, Instant};
+use std::time::Duration;
 
 use super::oidn_library::{
     candidates, version_text, Api, DEVICE_TYPE_CPU, DEVICE_TYPE_CUDA, FORMAT_FLOAT3, OLDEST_VERSION,
 };
-use super::oidn_settings::{OidnQuality, OidnSettings};
+use super::oidn_settings::OidnQuality;
 use crate::image::plane::Plane;
 
 /// The device OIDN filters on.
@@ -434,18 +434,6 @@ impl OidnDenoiser {
         result
     }
 
-    /// OIDN's estimate of the HDR beauty `color` (RGB) with its noisy auxiliaries, both
-    /// prefiltered first at high quality (OIDN's final-frame mode).
-    pub fn denoise(
-        &mut self,
-        color: &Plane,
-        albedo: Option<&Plane>,
-        normal: Option<&Plane>,
-    ) -> Result<Plane, OidnError> {
-        self.denoise_with(color, albedo, normal, &OidnSettings::default())
-            .map(|(p, _)| p)
-    }
-
     /// Sets the HDR beauty's exposure (OIDN's `inputScale`) for the filterings that follow;
     /// `None`: OIDN's own autoexposure of each image it is given. A frame filtered band by
     /// band needs the whole frame's ([`super::exposure::ExposureBins`]).
@@ -494,42 +482,6 @@ impl OidnDenoiser {
         let v = unsafe { (self.api.get_filter_int)(self.filters[slot], c.as_ptr()) };
         self.check("reading the beauty filter's tile overlap")?;
         Ok(v.max(0) as usize)
-    }
-
-    /// [`OidnDenoiser::denoise`] with `settings`, and the time its filters took. Albedo
-    /// without normal is allowed; a normal needs the albedo. Negative colour is clamped to 0,
-    /// the albedo to [0, 1] and the normal to [−1, 1], as OIDN expects.
-    pub fn denoise_with(
-        &mut self,
-        color: &Plane,
-        albedo: Option<&Plane>,
-        normal: Option<&Plane>,
-        settings: &OidnSettings,
-    ) -> Result<(Plane, GuideTimes), OidnError> {
-        check_images(color, albedo, normal)?;
-        let mut times = GuideTimes::default();
-        let (mut alb, mut nrm) = (None, None);
-        let q = settings.prefilter.quality();
-        if let Some(q) = q {
-            let started = Instant::now();
-            alb = albedo
-                .map(|a| self.prefilter(a, Aux::Albedo, q))
-                .transpose()?;
-            nrm = normal
-                .map(|n| self.prefilter(n, Aux::Normal, q))
-                .transpose()?;
-            times.prefilters = started.elapsed();
-        }
-        let started = Instant::now();
-        let guide = self.beauty(
-            color,
-            alb.as_ref().or(albedo),
-            nrm.as_ref().or(normal),
-            settings.quality,
-            q.is_some(),
-        )?;
-        times.beauty = started.elapsed();
-        Ok((guide, times))
     }
 
     /// OIDN's albedo or normal filter on `aux` (RGB) at `quality`.

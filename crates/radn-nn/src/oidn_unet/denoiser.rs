@@ -77,6 +77,17 @@ pub(crate) fn as_rgb(p: &Plane) -> Cow<'_, Plane> {
     }))
 }
 
+/// A network's RGB result as a plane of `channels` channels: itself for RGB, else the mean of
+/// its channels in each (the grey a one-channel AOV went in as, [`as_rgb`]).
+pub(crate) fn to_channels(out: Plane, channels: usize) -> Plane {
+    if channels == 3 {
+        return out;
+    }
+    Plane::from_fn(out.width(), out.height(), channels, |x, y, _| {
+        (out.get(x, y, 0) + out.get(x, y, 1) + out.get(x, y, 2)) / 3.0
+    })
+}
+
 /// The auxiliaries the beauty network reads, as planes of the rows of the frame (or band) it
 /// is given: as rendered, or cleaned by the prefilters.
 type Auxiliaries<'a> = (Option<Cow<'a, Plane>>, Option<Cow<'a, Plane>>);
@@ -190,13 +201,7 @@ impl SpatialDenoiser {
             } else {
                 run(&as_rgb(&crop(Cow::Borrowed(&a.plane))), scale)?
             };
-            aovs.push(if a.plane.channels() == 3 {
-                out
-            } else {
-                Plane::from_fn(out.width(), out.height(), a.plane.channels(), |x, y, _| {
-                    (out.get(x, y, 0) + out.get(x, y, 1) + out.get(x, y, 2)) / 3.0
-                })
-            });
+            aovs.push(to_channels(out, a.plane.channels()));
         }
         Ok(Denoised {
             color,

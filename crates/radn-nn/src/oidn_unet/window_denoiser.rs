@@ -1,5 +1,5 @@
 //! `radn denoise --method temporal`: OIDN's U-Net converted into the paper's spatio-temporal
-//! network ([`TemporalUnet`], fine-tuned by `radn train`) over each frame's window. The window
+//! network ([`TemporalUnet`](crate::oidn_unet::temporal::TemporalUnet), fine-tuned by `radn train`) over each frame's window. The window
 //! is aligned onto its centre frame by the renderer's motion with radn's confidence and centre
 //! mixing (as the training tiles were), then the network runs on the aligned frames
 //! ([`TemporalFilter`]). Each AOV goes through the same network over its aligned window with
@@ -13,7 +13,7 @@ use radn_core::io::frame::Frame;
 use radn_core::run::denoiser::{Denoised, WindowDenoiser};
 use radn_core::Plane;
 
-use crate::oidn_unet::denoiser::as_rgb;
+use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
 use crate::oidn_unet::temporal_filter::TemporalFilter;
 
@@ -88,13 +88,7 @@ impl WindowDenoiser for TemporalDenoiser {
         for (k, a) in centre.aovs.iter().enumerate() {
             let planes: Vec<Cow<Plane>> = win.frames.iter().map(|f| as_rgb(&f.aovs[k])).collect();
             let out = run(&planes, &as_rgb(&a.plane))?;
-            aovs.push(if a.plane.channels() == 3 {
-                out
-            } else {
-                Plane::from_fn(out.width(), out.height(), a.plane.channels(), |x, y, _| {
-                    (out.get(x, y, 0) + out.get(x, y, 1) + out.get(x, y, 2)) / 3.0
-                })
-            });
+            aovs.push(to_channels(out, a.plane.channels()));
         }
         Ok(Denoised {
             color,

@@ -358,7 +358,7 @@ fn oidn(
     repeats: usize,
     device: radn_nn::device::ComputeDevice,
 ) -> Result<()> {
-    use radn_core::guide::{OidnDenoiser, OidnDevice, OidnSettings, Prefilter};
+    use radn_core::guide::{GuideFilters, OidnDenoiser, OidnDevice, OidnSettings, Prefilter};
     let kind: OidnDevice = device.into();
     let mut d = OidnDenoiser::on(kind, 0)?;
     let (f, _) = reader.read(path)?;
@@ -379,7 +379,8 @@ fn oidn(
         let mut secs = Vec::new();
         for k in 0..=repeats.max(1) {
             let started = std::time::Instant::now();
-            d.denoise_with(&f.color, f.albedo.as_ref(), f.normal.as_ref(), &settings)?;
+            d.denoise_frame(&f.color, f.albedo.as_ref(), f.normal.as_ref(), &settings)
+                .map_err(anyhow::Error::msg)?;
             if k > 0 {
                 secs.push(started.elapsed().as_secs_f64());
             }
