@@ -81,7 +81,7 @@ pub struct Args {
     #[command(flatten)]
     pub channels: ChannelArgs,
 
-    /// network, classic (non-neural), spatial (OIDN's U-Net per frame) or temporal (the converted U-Net).
+    /// network, classic, spatial (OIDN's U-Net per frame) or temporal.
     #[arg(
         long,
         value_enum,
