@@ -51,6 +51,18 @@ fn oidn() -> Option<OidnGuides> {
     }
 }
 
+/// OIDN's final-frame guide of frame `f` (prefiltered auxiliaries, then the beauty).
+fn final_frame(d: &mut OidnDenoiser, f: &radn_core::io::frame::Frame) -> radn_core::Plane {
+    d.denoise_frame(
+        &f.color,
+        f.albedo.as_ref(),
+        f.normal.as_ref(),
+        &OidnSettings::default(),
+    )
+    .unwrap()
+    .0
+}
+
 #[test]
 fn the_oidn_guide_is_far_closer_to_the_reference_than_the_noisy_frame() {
     let Some(g) = oidn() else { return };
@@ -226,25 +238,9 @@ fn images_copied_through_oidn_buffers_give_the_shared_images_result() {
     }
     let mut d = OidnDenoiser::new(2).unwrap();
     let (f, _) = reader().read(&sample("low", 5)).unwrap();
-    let shared = d
-        .denoise_frame(
-            &f.color,
-            f.albedo.as_ref(),
-            f.normal.as_ref(),
-            &OidnSettings::default(),
-        )
-        .unwrap()
-        .0;
+    let shared = final_frame(&mut d, &f);
     d.copy_images(true);
-    let copied = d
-        .denoise_frame(
-            &f.color,
-            f.albedo.as_ref(),
-            f.normal.as_ref(),
-            &OidnSettings::default(),
-        )
-        .unwrap()
-        .0;
+    let copied = final_frame(&mut d, &f);
     assert_eq!(copied.data(), shared.data());
     assert!(psnr(&copied, &reference(5)).unwrap() > psnr(&f.color, &reference(5)).unwrap() + 6.0);
 }
@@ -258,25 +254,8 @@ fn oidn_on_a_gpu_agrees_with_the_cpu_or_says_why_it_cannot_run() {
     match OidnDenoiser::on(OidnDevice::Cuda(0), 0) {
         Ok(mut gpu) => {
             // a machine with an NVIDIA GPU: the same estimate within OIDN's GPU/CPU tolerance
-            let on_gpu = gpu
-                .denoise_frame(
-                    &f.color,
-                    f.albedo.as_ref(),
-                    f.normal.as_ref(),
-                    &OidnSettings::default(),
-                )
-                .unwrap()
-                .0;
-            let on_cpu = OidnDenoiser::new(2)
-                .unwrap()
-                .denoise_frame(
-                    &f.color,
-                    f.albedo.as_ref(),
-                    f.normal.as_ref(),
-                    &OidnSettings::default(),
-                )
-                .unwrap()
-                .0;
+            let on_gpu = final_frame(&mut gpu, &f);
+            let on_cpu = final_frame(&mut OidnDenoiser::new(2).unwrap(), &f);
             let agree = psnr(&on_gpu, &on_cpu).unwrap();
             eprintln!("OIDN on the GPU against the CPU: {agree:.1} dB");
             assert!(agree > 45.0, "GPU and CPU guides differ: {agree:.1} dB");
