@@ -9,7 +9,7 @@ use burn::tensor::activation::{relu, sigmoid};
 use burn::tensor::{Device, Tensor, TensorData};
 
 use crate::model::cpu::conv::{conv2d, HostConv};
-use crate::model::cpu::ra::{robust_average, RobustAverageConvs};
+use crate::model::cpu::ra::{robust_average, robust_average_steps, RobustAverageConvs};
 use crate::model::layers::{conv3, conv_flops};
 use crate::profile::{timed, Stage};
 
@@ -114,15 +114,43 @@ impl RobustAverage {
         timed(Stage::RobustAverage, || self.fused(h, dims))
     }
 
-    /// The fused CPU block ([`robust_average`]).
-    fn fused(&self, h: &[f32], [bt, c, hh, ww]: [usize; 4]) -> Vec<f32> {
-        let t = self.frames;
-        let convs = RobustAverageConvs {
+    /// The centre frame's map of [`RobustAverage::forward_on_host`] for one window `h`
+    /// (`[frames, c, hh, ww]`), `[c, hh, ww]`: only the steps up to the centre's run, since
+    /// no later step changes it.
+    pub fn centre_on_host(&self, h: &[f32], [t, c, hh, ww]: [usize; 4]) -> Vec<f32> {
+        assert_eq!(t, self.frames, "one window of the block's length");
+        let centre = t / 2;
+        let mut frames = timed(Stage::RobustAverage, || {
+            robust_average_steps(h, [1, t, c, hh, ww], &self.host_convs(), centre + 1)
+        });
+        let map = c * hh * ww;
+        frames.truncate((centre + 1) * map);
+        frames.drain(..centre * map);
+        frames
+    }
+
+    /// How many pixels (at the block's scale) beyond a pixel the centre frame's result reads:
+    /// each step up to the centre's adds its predictor's reach (a convolution over the frames
+    /// earlier steps updated, then the weight convolution).
+    pub fn centre_reach(&self) -> usize {
+        let reach = |conv: &Conv2d| conv.weight.val().dims()[2] / 2;
+        let step = reach(&self.hidden_self).max(reach(&self.hidden_avg)) + reach(&self.weight);
+        step * (self.frames / 2 + 1)
+    }
+
+    /// The block's convolutions in the CPU kernels' form.
+    fn host_convs(&self) -> RobustAverageConvs {
+        RobustAverageConvs {
             hidden_self: HostConv::of(&self.hidden_self),
             hidden_avg: HostConv::of(&self.hidden_avg),
             weight: HostConv::of(&self.weight),
-        };
-        robust_average(h, [bt / t, t, c, hh, ww], &convs)
+        }
+    }
+
+    /// The fused CPU block ([`robust_average`]).
+    fn fused(&self, h: &[f32], [bt, c, hh, ww]: [usize; 4]) -> Vec<f32> {
+        let t = self.frames;
+        robust_average(h, [bt / t, t, c, hh, ww], &self.host_convs())
     }
 
     /// [`RobustAverage::forward`] as burn operations (training, other backends).
@@ -265,5 +293,43 @@ mod tests {
                 x.to_data().try_to_vec::<f32>().unwrap()
             );
         }
+    }
+
+    /// The centre-only CPU path gives the whole block's centre map, and the centre reads
+    /// exactly [`RobustAverage::centre_reach`] pixels: a change that far away moves it, one
+    /// pixel further does not.
+    #[test]
+    fn the_centre_alone_equals_the_whole_block_and_reads_its_reach() {
+        let device = Device::flex();
+        let block = RobustAverage::new(8, 5, &device).with_weight_bias(0.0);
+        let (t, c, h, w) = (5, 8, 1, 31);
+        let input = |bump: Option<usize>| -> Vec<f32> {
+            (0..t * c * h * w)
+                .map(|i| {
+                    let x = i % w;
+                    let v = ((i * 7919) % 211) as f32 / 40.0 - 2.5;
+                    // every frame and channel changes at column `bump`
+                    if Some(x) == bump {
+                        v + 3.0
+                    } else {
+                        v
+                    }
+                })
+                .collect()
+        };
+        let x = input(None);
+        let all = block.forward_on_host(&x, [t, c, h, w]);
+        let centre = block.centre_on_host(&x, [t, c, h, w]);
+        assert_eq!(centre, all[2 * c * h * w..3 * c * h * w]);
+        let reach = block.centre_reach();
+        assert_eq!(reach, 6, "two 3×3 convolutions per step, three steps");
+        // the centre's value at column 0, with a change `d` columns away
+        let at_zero = |d: usize| -> Vec<f32> {
+            let out = block.centre_on_host(&input(Some(d)), [t, c, h, w]);
+            (0..c).map(|k| out[k * h * w]).collect()
+        };
+        let base: Vec<f32> = (0..c).map(|k| centre[k * h * w]).collect();
+        assert_ne!(at_zero(reach), base, "a change at the reach moves the centre");
+        assert_eq!(at_zero(reach + 1), base, "a change beyond the reach does not");
     }
 }

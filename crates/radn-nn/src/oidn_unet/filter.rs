@@ -236,8 +236,15 @@ impl UnetFilter {
     /// overlap allows: the whole padded frame when it fits, else whichever of square tiles,
     /// tiles as tall as the frame (a band) or as wide as it computes the fewest pixels.
     pub fn tiles_within(&self, w: usize, h: usize, budget: usize) -> Vec<Tile> {
+        self.tiles_overlapping(w, h, budget, self.config.layers.overlap())
+    }
+
+    /// [`UnetFilter::tiles_within`] with tiles that overlap by `ov` pixels (a multiple of
+    /// [`ALIGNMENT`], at least the network's overlap): for networks that read further than
+    /// the U-Net alone (the converted network's blocks).
+    pub fn tiles_overlapping(&self, w: usize, h: usize, budget: usize, ov: usize) -> Vec<Tile> {
+        debug_assert!(ov.is_multiple_of(ALIGNMENT) && ov >= self.config.layers.overlap());
         let (pw, ph) = (w.next_multiple_of(ALIGNMENT), h.next_multiple_of(ALIGNMENT));
-        let ov = self.config.layers.overlap();
         let grid = |v: usize| (v / ALIGNMENT * ALIGNMENT).max(ALIGNMENT);
         let layout = |cx: usize, cy: usize| -> Vec<Tile> {
             let spans = |n: usize, padded: usize, core: usize| {

@@ -7,6 +7,7 @@
 use radn_core::image::plane::Plane;
 
 use crate::model::ra_block::RobustAverage;
+use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::blocked::Blocked;
 use crate::oidn_unet::filter::{FilterError, Tile, UnetFilter, UnetImages};
 use crate::oidn_unet::temporal::TemporalUnet;
@@ -62,6 +63,16 @@ impl TemporalFilter {
         scale: f32,
         budget: usize,
     ) -> Result<Plane, FilterError> {
+        self.run_in_tiles(window, scale, |w, h| self.tiles_within(w, h, budget))
+    }
+
+    /// [`TemporalFilter::run`] in the tiles `tiles` gives for the frame's width and height.
+    fn run_in_tiles(
+        &self,
+        window: &[UnetImages],
+        scale: f32,
+        tiles: impl Fn(usize, usize) -> Vec<Tile>,
+    ) -> Result<Plane, FilterError> {
         assert_eq!(
             window.len(),
             self.frames,
@@ -81,7 +92,7 @@ impl TemporalFilter {
             ));
         }
         let mut out = Plane::zeros(w, h, 3);
-        let mut tiles = self.filter.tiles_within(w, h, budget);
+        let mut tiles = tiles(w, h);
         tiles.sort_by_key(|t| std::cmp::Reverse(t.pixels()));
         for tile in tiles {
             let levels: Vec<Vec<Blocked>> = planes
@@ -108,9 +119,8 @@ impl TemporalFilter {
             for m in &maps {
                 stacked.extend(m.to_planar());
             }
-            let averaged = b.ra.forward_on_host(&stacked, [t, c, hh, ww]);
+            let blended_centre = b.ra.centre_on_host(&stacked, [t, c, hh, ww]);
             let centre = &stacked[t / 2 * c * plane..][..c * plane];
-            let blended_centre = &averaged[t / 2 * c * plane..][..c * plane];
             let mut mixed = vec![0.0f32; c * plane];
             for ch in 0..c {
                 let g = b.gate[ch];
@@ -138,9 +148,25 @@ impl TemporalFilter {
         centre
     }
 
-    /// The tiles a `w × h` window runs in within `budget` pixels.
+    /// The tiles a `w × h` window runs in within `budget` pixels, overlapping by
+    /// [`TemporalFilter::reach`] so that tiled output equals whole-frame output.
     pub fn tiles_within(&self, w: usize, h: usize, budget: usize) -> Vec<Tile> {
-        self.filter.tiles_within(w, h, budget)
+        let ov = self.reach().next_multiple_of(ALIGNMENT);
+        self.filter.tiles_overlapping(w, h, budget, ov)
+    }
+
+    /// How many pixels beyond an output pixel the network reads: the U-Net's reach plus the
+    /// widest block's (a block at level k reads its own reach at scale 2^k; any path from the
+    /// output to the input passes through one block, and the encoder to level k and the
+    /// decoder from it are parts of the U-Net's deepest path).
+    pub fn reach(&self) -> usize {
+        let blocks = self
+            .blends
+            .iter()
+            .map(|b| b.ra.centre_reach() << b.level)
+            .max()
+            .unwrap_or(0);
+        self.filter.config().layers.reach() + blocks
     }
 }
 
@@ -240,5 +266,70 @@ mod tests {
         assert!(moved > 1e-3, "the open gates changed nothing ({moved})");
         let single = closed.unet().run(&window[1], Some(scale)).unwrap();
         assert_eq!(per_frame.channel(0), single.channel(0));
+    }
+
+    /// Tiles overlapping by the blocks' reach as well as the U-Net's give the whole frame's
+    /// output; the U-Net's overlap alone does not (the blocks read further).
+    #[test]
+    fn tiled_output_equals_whole_frame_output() {
+        let device = Device::flex();
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
+        let unet = crate::oidn_unet::store::load(&path, &device).unwrap();
+        device.seed(9);
+        let net = TemporalUnet::convert(
+            unet,
+            TemporalConfig {
+                frames: 3,
+                levels: vec![0, 2, 4],
+                color_confidence: None,
+            },
+            &device,
+        )
+        .unwrap()
+        .with_gates(0.8);
+        let filter = TemporalFilter::new(&net);
+        let (w, h) = (720, 40);
+        let colors: Vec<Plane> = (0..3).map(|k| plane(w, h, k, 2.0)).collect();
+        let albedo: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect();
+        let normal: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect();
+        let window: Vec<UnetImages> = (0..3)
+            .map(|k| UnetImages {
+                color: Some(&colors[k]),
+                albedo: Some(&albedo[k]),
+                normal: Some(&normal[k]),
+            })
+            .collect();
+        let scale = filter.unet().autoexposure(&colors[1]);
+        let whole = filter.run(&window, scale, usize::MAX).unwrap();
+        let ov = filter.reach().next_multiple_of(ALIGNMENT);
+        assert!(ov > filter.unet().config().layers.overlap());
+        let budget = 48 * (2 * ov + 64);
+        let tiles = filter.tiles_within(w, h, budget);
+        assert!(tiles.len() >= 3, "{} tiles", tiles.len());
+        let tiled = filter.run(&window, scale, budget).unwrap();
+        let largest = |a: &Plane, b: &Plane| {
+            (0..3)
+                .flat_map(|c| a.channel(c).iter().zip(b.channel(c)))
+                .map(|(x, y)| (x - y).abs())
+                .fold(0.0f32, f32::max)
+        };
+        assert_eq!(largest(&whole, &tiled), 0.0, "tiled differs from whole");
+        // the U-Net's own overlap misses what the blocks read
+        let short = filter
+            .run_in_tiles(&window, scale, |w, h| {
+                filter.unet().tiles_overlapping(
+                    w,
+                    h,
+                    budget,
+                    filter.unet().config().layers.overlap(),
+                )
+            })
+            .unwrap();
+        // (the far rows weigh little through these weights: some 4e-6, so only exactness shows it)
+        assert!(
+            largest(&whole, &short) > 0.0,
+            "the blocks' reach made no difference"
+        );
     }
 }

@@ -26,25 +26,44 @@ pub struct RobustAverageConvs {
 /// item): for each frame in turn, the robust average of the other frames (the mean without the
 /// minimum and maximum, from three frames on; the maps the earlier steps updated) is blended
 /// into it with the predicted per-pixel weight.
-pub fn robust_average(
+pub fn robust_average(h: &[f32], dims: [usize; 5], convs: &RobustAverageConvs) -> Vec<f32> {
+    robust_average_steps(h, dims, convs, dims[1])
+}
+
+/// [`robust_average`] for only the first `steps` frames of each batch item: the later frames
+/// are returned as given. A step reads only the frames before it as updated, so the first
+/// `steps` frames equal the whole block's (a window's centre needs the steps up to its own).
+pub fn robust_average_steps(
     h: &[f32],
     [b, t, c, hh, ww]: [usize; 5],
     convs: &RobustAverageConvs,
+    steps: usize,
 ) -> Vec<f32> {
     let plane = hh * ww;
     let map = c * plane;
     assert_eq!(h.len(), b * t * map, "latent maps size");
+    assert!(steps <= t, "at most one step per frame");
     let hc = convs.hidden_self.out_channels();
-    let pre = convs.hidden_self.run(h, b * t, hh, ww, false);
+    // the h_i half of the predictor for the frames that are stepped
+    let pre: Vec<f32> = if steps == t {
+        convs.hidden_self.run(h, b * t, hh, ww, false)
+    } else {
+        (0..b)
+            .flat_map(|item| {
+                let first = &h[item * t * map..][..steps * map];
+                convs.hidden_self.run(first, steps, hh, ww, false)
+            })
+            .collect()
+    };
     let mut frames = h.to_vec();
     let mut avg = vec![0.0f32; map];
     for item in 0..b {
         let base = item * t * map;
-        for i in 0..t {
+        for i in 0..steps {
             robust_mean_into(&frames[base..base + t * map], t, map, i, &mut avg);
             // relu(pre_i + conv(avg)), then the blend weight
             let mut hidden = convs.hidden_avg.run(&avg, 1, hh, ww, false);
-            let pre_i = &pre[(item * t + i) * hc * plane..][..hc * plane];
+            let pre_i = &pre[(item * steps + i) * hc * plane..][..hc * plane];
             hidden
                 .par_chunks_mut(CHUNK)
                 .zip(pre_i.par_chunks(CHUNK))
