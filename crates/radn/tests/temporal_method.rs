@@ -17,14 +17,19 @@ const UNET: &str = "../../models/oidn-rt_hdr_alb_nrm.safetensors";
 
 /// A converted standard U-Net (blocks at every level) with every gate at `gate`.
 fn model(path: &Path, gate: f32) {
+    model_with_blocks(path, gate, vec![0, 1, 2, 3, 4]);
+}
+
+/// A converted standard U-Net with blocks at `levels` and every gate at `gate`.
+fn model_with_blocks(path: &Path, gate: f32, levels: Vec<usize>) {
     let device = Device::flex();
     device.seed(7);
     let net = TemporalUnet::convert(
         store::load(Path::new(UNET), &device).unwrap(),
         TemporalConfig {
             frames: 5,
-            levels: vec![0, 1, 2, 3, 4],
-            color_confidence: None,
+            levels,
+            color_confidence: Some(0.6),
         },
         &device,
     )
@@ -35,16 +40,19 @@ fn model(path: &Path, gate: f32) {
 
 /// Runs `radn denoise` on frames `frames` of the sample without any OIDN library.
 fn denoise(out: &Path, frames: &str, extra: &[&str]) -> std::process::Output {
+    denoise_from(
+        "../../samples/cycles-sample/low/frame_####.exr",
+        out,
+        frames,
+        extra,
+    )
+}
+
+/// Runs `radn denoise` on frames `frames` of sequence `input` without any OIDN library.
+fn denoise_from(input: &str, out: &Path, frames: &str, extra: &[&str]) -> std::process::Output {
     Command::new(env!("CARGO_BIN_EXE_radn"))
         .env("RADN_OIDN_LIBRARY", "/nonexistent")
-        .args([
-            "--progress",
-            "off",
-            "denoise",
-            "-i",
-            "../../samples/cycles-sample/low/frame_####.exr",
-            "-o",
-        ])
+        .args(["--progress", "off", "denoise", "-i", input, "-o"])
         .arg(out.join("frame_####.exr"))
         .args(["--frames", frames])
         .args(extra)
@@ -107,4 +115,54 @@ fn the_temporal_method_needs_a_converted_model() {
     let e = String::from_utf8_lossy(&r.stderr);
     assert!(e.contains("not a converted OIDN U-Net"), "{e}");
     assert!(std::fs::read_dir(d.path()).unwrap().next().is_none());
+}
+
+#[test]
+fn banded_denoising_equals_whole_frame_denoising() {
+    // the sample stacked to 300 rows with AOVs and alpha; blocks at levels 0-2 (a halo of 144
+    // rows), so that 32-row bands leave much of each frame unread: each band aligns only the
+    // rows its window reaches and runs at the whole frame's exposures
+    let d = tempfile::tempdir().unwrap();
+    let net = d.path().join("open.st");
+    model_with_blocks(&net, 0.5, vec![0, 1, 2]);
+    let input = common::tall(d.path());
+    let run = |name: &str, bands: &str| {
+        let out = d.path().join(name);
+        let r = denoise_from(
+            &input,
+            &out,
+            "3-7",
+            &[
+                "--method",
+                "temporal",
+                "--model",
+                net.to_str().unwrap(),
+                "--bands",
+                bands,
+            ],
+        );
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        (3..=7)
+            .map(|f| ExrFile::read(out.join(format!("frame_{f:04}.exr"))).unwrap())
+            .collect::<Vec<_>>()
+    };
+    let whole = run("whole", "never");
+    let banded = run("banded", "32");
+    let mut compared = 0;
+    for (a, b) in whole.iter().zip(&banded) {
+        for name in a.channel_names() {
+            let (x, y) = (a.channel_f32(&name).unwrap(), b.channel_f32(&name).unwrap());
+            for (i, (u, v)) in x.iter().zip(&y).enumerate() {
+                assert!(
+                    (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                    "{name} pixel {i} (row {}): whole frame {u}, banded {v}",
+                    i / 176
+                );
+            }
+            if name.contains("Combined") || name.contains("diffuse") {
+                compared += x.len();
+            }
+        }
+    }
+    assert!(compared >= 5 * 7 * 176 * 300, "{compared} values compared");
 }

@@ -329,7 +329,15 @@ mod tests {
             (0..c).map(|k| out[k * h * w]).collect()
         };
         let base: Vec<f32> = (0..c).map(|k| centre[k * h * w]).collect();
-        assert_ne!(at_zero(reach), base, "a change at the reach moves the centre");
-        assert_eq!(at_zero(reach + 1), base, "a change beyond the reach does not");
+        assert_ne!(
+            at_zero(reach),
+            base,
+            "a change at the reach moves the centre"
+        );
+        assert_eq!(
+            at_zero(reach + 1),
+            base,
+            "a change beyond the reach does not"
+        );
     }
 }

@@ -6,22 +6,31 @@
 //! the same auxiliaries (one-channel AOVs as grey); alpha is kept as rendered.
 
 use std::borrow::Cow;
+use std::ops::Range;
 
-use radn_core::align::{align_window, AlignParams};
+use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::error::{Error, Result};
 use radn_core::io::frame::Frame;
-use radn_core::run::denoiser::{Denoised, WindowDenoiser};
+use radn_core::run::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
+use radn_core::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::Plane;
 
+use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
 use crate::oidn_unet::temporal_filter::TemporalFilter;
+
+/// The network's tiles hold at most this many pixels (overlap included) unless set: a 1080p
+/// frame runs as one tile. Each pixel of a tile holds every window frame's encoder levels, the
+/// blocks' working maps and the decoder's (some 3 kB at 1080p with the window's frames).
+pub const DEFAULT_TILE_PIXELS: usize = DEFAULT_MAX_TILE_PIXELS;
 
 /// The temporal method: a converted U-Net and how its windows are aligned.
 pub struct TemporalDenoiser {
     filter: TemporalFilter,
     align: AlignParams,
     name: String,
+    tile_pixels: usize,
 }
 
 impl TemporalDenoiser {
@@ -35,7 +44,15 @@ impl TemporalDenoiser {
             filter,
             align,
             name,
+            tile_pixels: DEFAULT_TILE_PIXELS,
         }
+    }
+
+    /// Caps the network's tiles at `pixels` (overlap included): less memory, more time
+    /// (tiles overlap by the network's reach). The output does not depend on it.
+    pub fn with_tile_pixels(mut self, pixels: usize) -> Self {
+        self.tile_pixels = pixels.max(ALIGNMENT * ALIGNMENT);
+        self
     }
 
     /// Which model runs, for the run's summary line.
@@ -49,6 +66,60 @@ impl TemporalDenoiser {
             c.oidn_version
         )
     }
+
+    /// Rows `out` of the centre of the aligned window `win` (the rows of `centre`, a frame or
+    /// a band of one), the beauty and each AOV at its exposure in `scales` (the beauty's, then
+    /// each AOV's in the reader's order).
+    fn denoise_aligned(
+        &self,
+        win: &AlignedWindow,
+        centre: &Frame,
+        scales: &[f32],
+        out: Range<usize>,
+    ) -> Result<Denoised> {
+        let fail = |e: crate::oidn_unet::filter::FilterError| Error::Unsupported {
+            path: centre.path.clone(),
+            detail: e.to_string(),
+        };
+        let whole = out == (0..centre.height());
+        // one plane per frame of the window through the network, with every frame's aligned
+        // auxiliaries
+        let run = |planes: &[Cow<Plane>], scale: f32| -> Result<Plane> {
+            let images: Vec<UnetImages> = win
+                .frames
+                .iter()
+                .zip(planes)
+                .map(|(f, p)| UnetImages {
+                    color: Some(p),
+                    albedo: f.albedo.as_ref(),
+                    normal: f.normal.as_ref(),
+                })
+                .collect();
+            let d = self
+                .filter
+                .run(&images, scale, self.tile_pixels)
+                .map_err(fail)?;
+            Ok(if whole { d } else { d.rows(out.clone()) })
+        };
+        let colors: Vec<Cow<Plane>> = win.frames.iter().map(|f| Cow::Borrowed(&f.color)).collect();
+        let color = run(&colors, scales[0])?;
+        let mut aovs = Vec::with_capacity(centre.aovs.len());
+        for (k, (a, &scale)) in centre.aovs.iter().zip(&scales[1..]).enumerate() {
+            let planes: Vec<Cow<Plane>> = win.frames.iter().map(|f| as_rgb(&f.aovs[k])).collect();
+            aovs.push(to_channels(run(&planes, scale)?, a.plane.channels()));
+        }
+        Ok(Denoised {
+            color,
+            alpha: centre.alpha.as_ref().map(|a| {
+                if whole {
+                    a.clone()
+                } else {
+                    a.rows(out.clone())
+                }
+            }),
+            aovs,
+        })
+    }
 }
 
 impl WindowDenoiser for TemporalDenoiser {
@@ -60,40 +131,51 @@ impl WindowDenoiser for TemporalDenoiser {
         let r = self.radius();
         let centre = window[r].expect("the centre frame is present");
         let win = align_window(window, &self.align);
-        let fail = |e: crate::oidn_unet::filter::FilterError| Error::Unsupported {
-            path: centre.path.clone(),
-            detail: e.to_string(),
-        };
-        // one plane per frame of the window through the network, with every frame's aligned
-        // auxiliaries, at the exposure of the centre's plane as rendered
-        let run = |planes: &[Cow<Plane>], rendered: &Plane| -> Result<Plane> {
-            let images: Vec<UnetImages> = win
-                .frames
-                .iter()
-                .zip(planes)
-                .map(|(f, p)| UnetImages {
-                    color: Some(p),
-                    albedo: f.albedo.as_ref(),
-                    normal: f.normal.as_ref(),
-                })
-                .collect();
-            let scale = self.filter.unet().autoexposure(rendered);
-            self.filter
-                .run(&images, scale, DEFAULT_MAX_TILE_PIXELS)
-                .map_err(fail)
-        };
-        let colors: Vec<Cow<Plane>> = win.frames.iter().map(|f| Cow::Borrowed(&f.color)).collect();
-        let color = run(&colors, &centre.color)?;
-        let mut aovs = Vec::with_capacity(centre.aovs.len());
-        for (k, a) in centre.aovs.iter().enumerate() {
-            let planes: Vec<Cow<Plane>> = win.frames.iter().map(|f| as_rgb(&f.aovs[k])).collect();
-            let out = run(&planes, &as_rgb(&a.plane))?;
-            aovs.push(to_channels(out, a.plane.channels()));
-        }
-        Ok(Denoised {
-            color,
-            alpha: centre.alpha.clone(),
-            aovs,
-        })
+        // every plane at OIDN's exposure of the centre's plane as rendered
+        let scales: Vec<f32> = std::iter::once(&centre.color)
+            .chain(centre.aovs.iter().map(|a| &a.plane))
+            .map(|p| self.filter.unet().autoexposure(p))
+            .collect();
+        self.denoise_aligned(&win, centre, &scales, 0..centre.height())
+    }
+
+    fn banded(&self) -> Option<&dyn BandDenoiser> {
+        Some(self)
+    }
+}
+
+impl BandDenoiser for TemporalDenoiser {
+    fn band_rows(&self, width: usize, limit: usize) -> usize {
+        // bands whose rows and halo fill about one tile, but at least twice the halo (which
+        // each band computes again), on the network's 16-row grid so that every band starts
+        // on the whole frame's
+        let halo = self.halo();
+        let rows = (self.tile_pixels / width.max(1))
+            .saturating_sub(2 * halo)
+            .max(2 * halo)
+            .min(limit);
+        (rows / ALIGNMENT * ALIGNMENT).max(ALIGNMENT)
+    }
+
+    fn halo(&self) -> usize {
+        // the network's reach, and the rows banded alignment gets wrong next to a band's cut
+        (self.filter.reach() + ALIGNMENT_EDGE_ROWS).next_multiple_of(ALIGNMENT)
+    }
+
+    fn denoise_band(
+        &self,
+        window: &[Option<FrameBand>],
+        out: Range<usize>,
+        centre: &FrameStats,
+    ) -> Result<Denoised> {
+        let band = window[self.radius()].expect("the centre band is present");
+        let win = align_bands(window, &self.align);
+        // every band at the exposure of the whole centre frame's planes
+        let scales: Vec<f32> = centre
+            .autoexposure
+            .iter()
+            .map(|bins| self.filter.unet().exposure_of(bins))
+            .collect();
+        self.denoise_aligned(&win, band.frame, &scales, out)
     }
 }
