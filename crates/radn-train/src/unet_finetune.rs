@@ -254,6 +254,7 @@ impl Finetune {
             frames: train.manifest.frames,
             levels: config.levels.clone(),
             color_confidence: config.color_confidence,
+            warp: Default::default(),
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;

@@ -80,6 +80,7 @@ pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::Temp
     Ok(TemporalDenoiser::new(
         TemporalFilter::new(&net),
         net.config().color_confidence,
+        net.config().warp,
         path.display().to_string(),
     ))
 }

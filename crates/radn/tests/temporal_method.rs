@@ -10,7 +10,7 @@ use std::process::Command;
 
 use radn_core::io::exr_file::ExrFile;
 use radn_nn::burn::tensor::Device;
-use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet};
+use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet, WarpSpace};
 use radn_nn::oidn_unet::{store, temporal_store};
 
 const UNET: &str = "../../models/oidn-rt_hdr_alb_nrm.safetensors";
@@ -22,6 +22,12 @@ fn model(path: &Path, gate: f32) {
 
 /// A converted standard U-Net with blocks at `levels` and every gate at `gate`.
 fn model_with_blocks(path: &Path, gate: f32, levels: Vec<usize>) {
+    model_with(path, gate, levels, WarpSpace::Images);
+}
+
+/// A converted standard U-Net with blocks at `levels`, every gate at `gate`, and its window
+/// moved onto the centre in `warp`.
+fn model_with(path: &Path, gate: f32, levels: Vec<usize>, warp: WarpSpace) {
     let device = Device::flex();
     device.seed(7);
     let net = TemporalUnet::convert(
@@ -30,6 +36,7 @@ fn model_with_blocks(path: &Path, gate: f32, levels: Vec<usize>) {
             frames: 5,
             levels,
             color_confidence: Some(0.6),
+            warp,
         },
         &device,
     )
@@ -165,4 +172,72 @@ fn banded_denoising_equals_whole_frame_denoising() {
         }
     }
     assert!(compared >= 5 * 7 * 176 * 300, "{compared} values compared");
+}
+
+#[test]
+fn feature_warping_gives_the_spatial_result_with_closed_gates_and_uses_the_window_open() {
+    // each frame through the encoder once, its levels warped to the centre: closed gates are
+    // the per-frame U-Net exactly (the centre's levels are made at its own exposure, as the
+    // spatial method's); open gates use the window (how close this comes to image warping
+    // with trained blocks is measured in docs/research/oidn-temporal.md)
+    let d = tempfile::tempdir().unwrap();
+    let model = |name: &str, gate: f32| {
+        let p = d.path().join(name);
+        model_with(&p, gate, vec![0, 1, 2, 3, 4], WarpSpace::Features);
+        p
+    };
+    let (closed, open) = (model("closed.st", 0.0), model("open.st", 0.5));
+    let out = |name: &str| d.path().join(name);
+    let run = |name: &str, extra: &[&str]| {
+        let r = denoise(&out(name), "1-5", extra);
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        String::from_utf8_lossy(&r.stdout).into_owned()
+    };
+    run("spatial", &["--method", "spatial"]);
+    let temporal =
+        |m: &Path| ["--method", "temporal", "--model", m.to_str().unwrap()].map(String::from);
+    let said = run("closed", &temporal(&closed).each_ref().map(String::as_str));
+    assert!(said.contains("features warped"), "{said}");
+    // with the encoder's log on: each of the five frames goes through the encoder once,
+    // although five windows read each of them
+    let r = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .env("RADN_OIDN_LIBRARY", "/nonexistent")
+        .env("RUST_LOG", "radn_nn=debug")
+        .args(["--progress", "off", "denoise", "-i"])
+        .arg("../../samples/cycles-sample/low/frame_####.exr")
+        .arg("-o")
+        .arg(out("open").join("frame_####.exr"))
+        .args(["--frames", "1-5"])
+        .args(temporal(&open))
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let log = String::from_utf8_lossy(&r.stderr).into_owned() + &String::from_utf8_lossy(&r.stdout);
+    for frame in 1..=5 {
+        let made = log
+            .lines()
+            .filter(|l| {
+                l.contains("encoder levels made") && l.contains(&format!("frame_{frame:04}.exr"))
+            })
+            .count();
+        assert_eq!(made, 1, "frame {frame} encoded {made} times:\n{log}");
+    }
+    for frame in 1..=5 {
+        let s = beauty(&out("spatial"), frame);
+        let c = beauty(&out("closed"), frame);
+        assert_eq!(
+            s.data(),
+            c.data(),
+            "frame {frame}: closed gates are the per-frame U-Net"
+        );
+        let o = beauty(&out("open"), frame);
+        assert!(o.data().iter().all(|v| v.is_finite()));
+        let moved = s
+            .data()
+            .iter()
+            .zip(o.data())
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1e-3, "frame {frame}: open gates changed nothing");
+    }
 }

@@ -29,6 +29,22 @@ pub struct TemporalConfig {
     /// blocks would otherwise average in; `None` leaves the term out.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub color_confidence: Option<f32>,
+    /// Where the window is moved onto its centre frame at inference.
+    #[serde(default)]
+    pub warp: WarpSpace,
+}
+
+/// Where a converted network's window is moved onto its centre frame.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum WarpSpace {
+    /// The frames are aligned as images (radn's alignment with confidence and centre mixing)
+    /// and every aligned frame goes through the encoder: what the training tiles hold.
+    #[default]
+    Images,
+    /// Each frame goes through the encoder as rendered and its levels are warped to the centre
+    /// by the same motion and confidence (the paper's pre-warping per level).
+    Features,
 }
 
 impl TemporalConfig {
@@ -266,6 +282,7 @@ mod tests {
                 frames: t,
                 levels: vec![1, 2, 3, 4],
                 color_confidence: None,
+                warp: Default::default(),
             },
             &device,
         )
@@ -317,6 +334,7 @@ mod tests {
                     frames,
                     levels,
                     color_confidence: None,
+                    warp: Default::default(),
                 },
                 &device,
             )
@@ -342,6 +360,7 @@ mod tests {
                 frames: t,
                 levels: vec![2, 4],
                 color_confidence: None,
+                warp: Default::default(),
             },
             &device,
         )

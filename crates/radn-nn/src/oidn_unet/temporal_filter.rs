@@ -9,6 +9,7 @@ use radn_core::image::plane::Plane;
 use crate::model::ra_block::RobustAverage;
 use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::blocked::Blocked;
+use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::filter::{FilterError, Tile, UnetFilter, UnetImages};
 use crate::oidn_unet::temporal::TemporalUnet;
 
@@ -17,6 +18,20 @@ struct HostBlend {
     level: usize,
     ra: RobustAverage,
     gate: Vec<f32>,
+}
+
+/// One frame's encoder levels over the whole frame, for every window the frame is in.
+pub struct FrameLevels {
+    levels: Vec<Blocked>,
+    width: usize,
+    height: usize,
+}
+
+impl FrameLevels {
+    /// Bytes its maps hold.
+    pub fn bytes(&self) -> usize {
+        self.levels.iter().map(|m| m.data().len() * 4).sum()
+    }
 }
 
 /// A converted U-Net's weights ready to run on aligned windows.
@@ -99,7 +114,7 @@ impl TemporalFilter {
                 .iter()
                 .map(|p| self.filter.encode(self.filter.tile_input(p, &tile, scale)))
                 .collect();
-            let result = self.filter.decode(self.blend(levels));
+            let result = self.filter.decode(self.blend(levels, None));
             self.filter.tile_output(&result, &tile, scale, &mut out);
             self.filter.scratch().recycle(result);
         }
@@ -107,37 +122,106 @@ impl TemporalFilter {
         Ok(out)
     }
 
-    /// The window's encoder levels (one list per frame) blended into the centre frame's.
-    fn blend(&self, mut levels: Vec<Vec<Blocked>>) -> Vec<Blocked> {
+    /// Denoises the centre of `window`, whose frames are as rendered (not aligned), at input
+    /// scale `scale`: each frame's encoder levels are warped to the centre by `motion` (the
+    /// window's full-resolution motion, padded to the frame's multiple of 16) before the
+    /// blocks. The frame runs as one tile.
+    pub fn run_warped(
+        &self,
+        window: &[UnetImages],
+        motion: &HostMotion,
+        scale: f32,
+    ) -> Result<Plane, FilterError> {
+        assert_eq!(
+            window.len(),
+            self.frames,
+            "a window of the network's length"
+        );
+        let levels = window
+            .iter()
+            .map(|images| self.encode_frame(images, scale))
+            .collect::<Result<Vec<_>, _>>()?;
+        self.decode_warped(&levels.iter().collect::<Vec<_>>(), motion, scale)
+    }
+
+    /// One frame's encoder levels over the whole frame (padded to a multiple of 16) at input
+    /// scale `scale`: what every window the frame is in reads ([`TemporalFilter::decode_warped`]).
+    pub fn encode_frame(
+        &self,
+        images: &UnetImages,
+        scale: f32,
+    ) -> Result<FrameLevels, FilterError> {
+        let planes = self.filter.planes(images)?;
+        let (width, height) = (planes[0].0.width(), planes[0].0.height());
+        let tile = Self::whole(width, height);
+        Ok(FrameLevels {
+            levels: self
+                .filter
+                .encode(self.filter.tile_input(&planes, &tile, scale)),
+            width,
+            height,
+        })
+    }
+
+    /// The centre frame's output from the window's encoder levels (`window`, one per frame,
+    /// as rendered), each side frame's warped to the centre by `motion` before the blocks, at
+    /// the centre's input scale `scale`.
+    pub fn decode_warped(
+        &self,
+        window: &[&FrameLevels],
+        motion: &HostMotion,
+        scale: f32,
+    ) -> Result<Plane, FilterError> {
+        let (w, h) = (window[0].width, window[0].height);
+        if window.iter().any(|f| f.width != w || f.height != h) {
+            return Err(FilterError::Shape(
+                "the window's frames differ in size".into(),
+            ));
+        }
+        let t = self.frames;
+        let centre = &window[t / 2].levels;
+        let mut levels: Vec<Blocked> = Vec::with_capacity(centre.len());
+        let mut blends = self.blends.iter().peekable();
+        for (l, own) in centre.iter().enumerate() {
+            levels.push(match blends.next_if(|b| b.level == l) {
+                Some(b) => {
+                    let maps: Vec<&Blocked> = window.iter().map(|f| &f.levels[l]).collect();
+                    self.blend_level(b, &maps, Some(motion))
+                }
+                None => own.clone(),
+            });
+        }
+        let tile = Self::whole(w, h);
+        let result = self.filter.decode(levels);
+        let mut out = Plane::zeros(w, h, 3);
+        self.filter.tile_output(&result, &tile, scale, &mut out);
+        self.filter.scratch().recycle(result);
+        self.filter.scratch().trim();
+        Ok(out)
+    }
+
+    /// The one tile of a whole `w × h` frame.
+    fn whole(w: usize, h: usize) -> Tile {
+        Tile {
+            buffer: [
+                0,
+                0,
+                w.next_multiple_of(ALIGNMENT),
+                h.next_multiple_of(ALIGNMENT),
+            ],
+            core: [0, 0, w, h],
+        }
+    }
+
+    /// The window's encoder levels (one list per frame, aligned) blended into the centre
+    /// frame's.
+    fn blend(&self, mut levels: Vec<Vec<Blocked>>, motion: Option<&HostMotion>) -> Vec<Blocked> {
         let t = self.frames;
         let scratch = self.filter.scratch();
         for b in &self.blends {
             let maps: Vec<&Blocked> = levels.iter().map(|f| &f[b.level]).collect();
-            let (c, hh, ww) = (maps[0].channels(), maps[0].height(), maps[0].width());
-            let plane = hh * ww;
-            let mut stacked = Vec::with_capacity(t * c * plane);
-            for m in &maps {
-                stacked.extend(m.to_planar());
-            }
-            let blended_centre = b.ra.centre_on_host(&stacked, [t, c, hh, ww]);
-            let centre = &stacked[t / 2 * c * plane..][..c * plane];
-            let mut mixed = vec![0.0f32; c * plane];
-            for ch in 0..c {
-                let g = b.gate[ch];
-                let range = ch * plane..(ch + 1) * plane;
-                for ((o, &h), &a) in mixed[range.clone()]
-                    .iter_mut()
-                    .zip(&centre[range.clone()])
-                    .zip(&blended_centre[range])
-                {
-                    *o = h + (a - h) * g;
-                }
-            }
-            let old = std::mem::replace(
-                &mut levels[t / 2][b.level],
-                Blocked::from_planar(&mixed, c, hh, ww),
-            );
-            scratch.recycle(old);
+            let mixed = self.blend_level(b, &maps, motion);
+            scratch.recycle(std::mem::replace(&mut levels[t / 2][b.level], mixed));
         }
         let centre = levels.swap_remove(t / 2);
         for frame in levels {
@@ -146,6 +230,59 @@ impl TemporalFilter {
             }
         }
         centre
+    }
+
+    /// One blended level: the window's maps at that level (`maps`, one per frame; with
+    /// `motion`, side frames' are first warped to the centre), the block's result for the
+    /// centre let into the centre's map through the gate.
+    fn blend_level(
+        &self,
+        b: &HostBlend,
+        maps: &[&Blocked],
+        motion: Option<&HostMotion>,
+    ) -> Blocked {
+        let t = self.frames;
+        let (c, hh, ww) = (maps[0].channels(), maps[0].height(), maps[0].width());
+        let plane = hh * ww;
+        let map = c * plane;
+        let t0 = std::time::Instant::now();
+        let mut stacked = Vec::with_capacity(t * map);
+        for m in maps {
+            stacked.extend(m.to_planar());
+        }
+        if let Some(motion) = motion {
+            let at = motion.at_level(b.level);
+            let centre = stacked[t / 2 * map..][..map].to_vec();
+            for k in (0..t).filter(|&k| k != t / 2) {
+                let warped = at.to_centre(k, &stacked[k * map..][..map], &centre);
+                stacked[k * map..][..map].copy_from_slice(&warped);
+            }
+        }
+        let t1 = std::time::Instant::now();
+        let blended_centre = b.ra.centre_on_host(&stacked, [t, c, hh, ww]);
+        let t2 = std::time::Instant::now();
+        let centre = &stacked[t / 2 * map..][..map];
+        let mut mixed = vec![0.0f32; map];
+        for ch in 0..c {
+            let g = b.gate[ch];
+            let range = ch * plane..(ch + 1) * plane;
+            for ((o, &h), &a) in mixed[range.clone()]
+                .iter_mut()
+                .zip(&centre[range.clone()])
+                .zip(&blended_centre[range])
+            {
+                *o = h + (a - h) * g;
+            }
+        }
+        let out = Blocked::from_planar(&mixed, c, hh, ww);
+        tracing::trace!(
+            "blend at level {}: {:.1} ms to the block, {:.1} ms in it, {:.1} ms after",
+            b.level,
+            (t1 - t0).as_secs_f64() * 1e3,
+            (t2 - t1).as_secs_f64() * 1e3,
+            t2.elapsed().as_secs_f64() * 1e3
+        );
+        out
     }
 
     /// The tiles a `w × h` window runs in within `budget` pixels, overlapping by
@@ -199,6 +336,7 @@ mod tests {
                 frames: 3,
                 levels: vec![0, 1, 4],
                 color_confidence: None,
+                warp: Default::default(),
             },
             &device,
         )
@@ -283,6 +421,7 @@ mod tests {
                 frames: 3,
                 levels: vec![0, 2, 4],
                 color_confidence: None,
+                warp: Default::default(),
             },
             &device,
         )
@@ -331,5 +470,120 @@ mod tests {
             largest(&whole, &short) > 0.0,
             "the blocks' reach made no difference"
         );
+    }
+
+    /// With motion, the CPU path warps each frame's levels as burn's forward does.
+    #[test]
+    fn the_feature_warped_cpu_path_equals_burns_forward_with_motion() {
+        use crate::oidn_unet::cpu::feature_warp::HostMotion;
+        use crate::oidn_unet::feature_warp::WindowMotion;
+        let device = Device::flex();
+        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+            .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
+        let unet = crate::oidn_unet::store::load(&path, &device).unwrap();
+        device.seed(3);
+        let net = TemporalUnet::convert(
+            unet,
+            TemporalConfig {
+                frames: 3,
+                levels: vec![0, 1, 3],
+                color_confidence: None,
+                warp: Default::default(),
+            },
+            &device,
+        )
+        .unwrap()
+        .with_gates(0.6);
+        let (w, h) = (48, 32);
+        let colors: Vec<Plane> = (0..3).map(|k| plane(w, h, k, 2.0)).collect();
+        let albedo: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect();
+        let normal: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect();
+        let flows: Vec<Plane> = (0..3)
+            .map(|k| {
+                Plane::from_fn(w, h, 2, |x, y, c| {
+                    if k == 1 {
+                        0.0
+                    } else {
+                        ((x * 3 + y * 5 + c * 7 + k) % 17) as f32 / 2.0 - 4.0
+                    }
+                })
+            })
+            .collect();
+        let confs: Vec<Plane> = (0..3)
+            .map(|k| {
+                Plane::from_fn(w, h, 1, |x, y, _| {
+                    if k == 1 {
+                        1.0
+                    } else {
+                        ((x + y) % 4) as f32 / 3.0
+                    }
+                })
+            })
+            .collect();
+        let window: Vec<UnetImages> = (0..3)
+            .map(|k| UnetImages {
+                color: Some(&colors[k]),
+                albedo: Some(&albedo[k]),
+                normal: Some(&normal[k]),
+            })
+            .collect();
+        let filter = TemporalFilter::new(&net);
+        let scale = filter.unet().autoexposure(&colors[1]);
+        let motion = HostMotion::padded(
+            &flows.iter().collect::<Vec<_>>(),
+            &confs.iter().collect::<Vec<_>>(),
+            w,
+            h,
+        );
+        let cpu = filter.run_warped(&window, &motion, scale).unwrap();
+        let mut x = vec![0.0f32; 3 * 9 * h * w];
+        for k in 0..3 {
+            for (j, (p, proc_)) in [
+                (&colors[k], HDR_BEAUTY),
+                (&albedo[k], AUX_ALBEDO),
+                (&normal[k], AUX_NORMAL),
+            ]
+            .into_iter()
+            .enumerate()
+            {
+                for c in 0..3 {
+                    for (i, v) in p.channel(c).iter().enumerate() {
+                        x[(k * 9 + j * 3 + c) * h * w + i] = proc_.input(*v, scale);
+                    }
+                }
+            }
+        }
+        let tensor = |v: Vec<f32>, shape: [usize; 4]| -> Tensor<4> {
+            Tensor::from_data(TensorData::new(v, shape), &device)
+        };
+        let m = WindowMotion {
+            offsets: tensor(
+                flows.iter().flat_map(|f| f.data().to_vec()).collect(),
+                [3, 2, h, w],
+            ),
+            confidence: tensor(
+                confs.iter().flat_map(|f| f.data().to_vec()).collect(),
+                [3, 1, h, w],
+            ),
+        };
+        let y = net
+            .forward(tensor(x, [3, 9, h, w]), Some(&m))
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        let mut worst = 0.0f32;
+        for c in 0..3 {
+            for (i, v) in cpu.channel(c).iter().enumerate() {
+                worst = worst.max((v - HDR_BEAUTY.output(y[c * h * w + i], scale)).abs());
+            }
+        }
+        assert!(worst < 1e-4, "largest difference {worst}");
+        // the motion matters: the same frames without it differ
+        let still = filter.run(&window, scale, usize::MAX).unwrap();
+        let moved = (0..3)
+            .flat_map(|c| still.channel(c).iter().zip(cpu.channel(c)))
+            .map(|(a, b)| (a - b).abs())
+            .fold(0.0f32, f32::max);
+        assert!(moved > 1e-3, "the motion changed nothing ({moved})");
     }
 }

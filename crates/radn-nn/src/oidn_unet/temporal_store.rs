@@ -114,6 +114,7 @@ mod tests {
             frames: 3,
             levels: vec![0, 2],
             color_confidence: Some(0.6),
+            warp: Default::default(),
         };
         let net = TemporalUnet::convert(unet, config.clone(), &device).unwrap();
         // open the gates so the blocks' weights matter

@@ -7,6 +7,8 @@
 
 use std::borrow::Cow;
 use std::ops::Range;
+use std::path::PathBuf;
+use std::sync::{Arc, Mutex};
 
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::error::{Error, Result};
@@ -16,9 +18,11 @@ use radn_core::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 use radn_core::Plane;
 
 use crate::oidn_unet::config::ALIGNMENT;
+use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
-use crate::oidn_unet::temporal_filter::TemporalFilter;
+use crate::oidn_unet::temporal::WarpSpace;
+use crate::oidn_unet::temporal_filter::{FrameLevels, TemporalFilter};
 
 /// The network's tiles hold at most this many pixels (overlap included) unless set: a 1080p
 /// frame runs as one tile. Each pixel of a tile holds every window frame's encoder levels, the
@@ -31,13 +35,20 @@ pub struct TemporalDenoiser {
     align: AlignParams,
     name: String,
     tile_pixels: usize,
+    warp: WarpSpace,
+    cache: Mutex<LevelCache>,
 }
 
 impl TemporalDenoiser {
     /// Runs `filter` on windows aligned with radn's default alignment (the training tiles')
-    /// and the colour term `color_confidence` (the model's); `name` labels the model in the
-    /// run's summary.
-    pub fn new(filter: TemporalFilter, color_confidence: Option<f32>, name: String) -> Self {
+    /// and the colour term `color_confidence` (the model's), moved onto the centre in `warp`
+    /// (the model's); `name` labels the model in the run's summary.
+    pub fn new(
+        filter: TemporalFilter,
+        color_confidence: Option<f32>,
+        warp: WarpSpace,
+        name: String,
+    ) -> Self {
         let mut align = AlignParams::default();
         align.confidence.color = color_confidence;
         Self {
@@ -45,6 +56,8 @@ impl TemporalDenoiser {
             align,
             name,
             tile_pixels: DEFAULT_TILE_PIXELS,
+            warp,
+            cache: Mutex::default(),
         }
     }
 
@@ -59,11 +72,15 @@ impl TemporalDenoiser {
     pub fn summary(&self) -> String {
         let c = self.filter.unet().config();
         format!(
-            "{} ({} over {} frames, OIDN {})",
+            "{} ({} over {} frames, OIDN {}, {} warped)",
             self.name,
             c.weights,
             self.filter.frames(),
-            c.oidn_version
+            c.oidn_version,
+            match self.warp {
+                WarpSpace::Images => "images",
+                WarpSpace::Features => "features",
+            }
         )
     }
 
@@ -122,6 +139,120 @@ impl TemporalDenoiser {
     }
 }
 
+impl TemporalDenoiser {
+    /// The centre of `window` with each frame's encoder levels (made once per frame, at the
+    /// frame's own exposure, and kept while windows still read them) warped to the centre by
+    /// the motion and confidence alignment found (`win`); frames beyond the sequence ends are
+    /// the centre's, at zero confidence.
+    fn denoise_warped(
+        &self,
+        window: &[Option<&Frame>],
+        win: &AlignedWindow,
+        scales: &[f32],
+    ) -> Result<Denoised> {
+        let centre = window[self.radius()].expect("the centre frame is present");
+        let frames: Vec<&Frame> = window.iter().map(|f| f.unwrap_or(centre)).collect();
+        let (w, h) = (centre.width(), centre.height());
+        let motion = HostMotion::padded(
+            &win.frames.iter().map(|f| &f.flow).collect::<Vec<_>>(),
+            &win.frames.iter().map(|f| &f.confidence).collect::<Vec<_>>(),
+            w.next_multiple_of(ALIGNMENT),
+            h.next_multiple_of(ALIGNMENT),
+        );
+        let run = |image: usize| -> Result<Plane> {
+            let levels = frames
+                .iter()
+                .map(|f| self.levels_of(f, image))
+                .collect::<Result<Vec<_>>>()?;
+            let refs: Vec<&FrameLevels> = levels.iter().map(|l| l.as_ref()).collect();
+            self.filter
+                .decode_warped(&refs, &motion, scales[image])
+                .map_err(|e| Error::Unsupported {
+                    path: centre.path.clone(),
+                    detail: e.to_string(),
+                })
+        };
+        let color = run(0)?;
+        let mut aovs = Vec::with_capacity(centre.aovs.len());
+        for (k, a) in centre.aovs.iter().enumerate() {
+            aovs.push(to_channels(run(k + 1)?, a.plane.channels()));
+        }
+        Ok(Denoised {
+            color,
+            alpha: centre.alpha.clone(),
+            aovs,
+        })
+    }
+
+    /// Frame `f`'s encoder levels of its beauty (`image` 0) or of AOV `image` − 1, from the
+    /// cache or made now at the plane's own exposure.
+    fn levels_of(&self, f: &Frame, image: usize) -> Result<Arc<FrameLevels>> {
+        let key = (f.path.clone(), image);
+        if let Some(hit) = self.cache.lock().expect("no panic while held").get(&key) {
+            return Ok(hit);
+        }
+        let rendered = match image {
+            0 => &f.color,
+            k => &f.aovs[k - 1].plane,
+        };
+        let plane = as_rgb(rendered);
+        let images = UnetImages {
+            color: Some(&plane),
+            albedo: f.albedo.as_ref(),
+            normal: f.normal.as_ref(),
+        };
+        let scale = self.filter.unet().autoexposure(rendered);
+        let started = std::time::Instant::now();
+        let levels =
+            Arc::new(
+                self.filter
+                    .encode_frame(&images, scale)
+                    .map_err(|e| Error::Unsupported {
+                        path: f.path.clone(),
+                        detail: e.to_string(),
+                    })?,
+            );
+        tracing::debug!(
+            frame = %f.path.display(),
+            image,
+            "encoder levels made in {:.2} s ({} MB)",
+            started.elapsed().as_secs_f64(),
+            levels.bytes() >> 20
+        );
+        self.cache.lock().expect("no panic while held").insert(
+            key,
+            levels.clone(),
+            self.filter.frames() * (1 + f.aovs.len()),
+        );
+        Ok(levels)
+    }
+}
+
+/// The encoder levels of the frames the latest windows read, the least recently used first.
+#[derive(Default)]
+struct LevelCache {
+    entries: Vec<((PathBuf, usize), Arc<FrameLevels>)>,
+}
+
+impl LevelCache {
+    /// The levels kept for `key`, now the most recently used.
+    fn get(&mut self, key: &(PathBuf, usize)) -> Option<Arc<FrameLevels>> {
+        let i = self.entries.iter().position(|(k, _)| k == key)?;
+        let entry = self.entries.remove(i);
+        let levels = entry.1.clone();
+        self.entries.push(entry);
+        Some(levels)
+    }
+
+    /// Keeps `levels` for `key`, dropping the least recently used beyond `capacity`.
+    fn insert(&mut self, key: (PathBuf, usize), levels: Arc<FrameLevels>, capacity: usize) {
+        self.entries.retain(|(k, _)| *k != key);
+        self.entries.push((key, levels));
+        let excess = self.entries.len().saturating_sub(capacity.max(1));
+        self.entries.drain(..excess);
+    }
+}
+
 impl WindowDenoiser for TemporalDenoiser {
     fn radius(&self) -> usize {
         self.filter.frames() / 2
@@ -136,11 +267,15 @@ impl WindowDenoiser for TemporalDenoiser {
             .chain(centre.aovs.iter().map(|a| &a.plane))
             .map(|p| self.filter.unet().autoexposure(p))
             .collect();
-        self.denoise_aligned(&win, centre, &scales, 0..centre.height())
+        match self.warp {
+            WarpSpace::Images => self.denoise_aligned(&win, centre, &scales, 0..centre.height()),
+            WarpSpace::Features => self.denoise_warped(window, &win, &scales),
+        }
     }
 
     fn banded(&self) -> Option<&dyn BandDenoiser> {
-        Some(self)
+        // feature warping runs whole frames
+        (self.warp == WarpSpace::Images).then_some(self as _)
     }
 }
 

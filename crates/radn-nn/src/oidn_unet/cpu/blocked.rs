@@ -244,20 +244,34 @@ impl Blocked {
         })
     }
 
-    /// The map as planar `channels × height × width` floats (NCHW of one image).
+    /// The map as planar `channels × height × width` floats (NCHW of one image). Each block's
+    /// row is read once for all its channels (a pass per channel would read the whole map
+    /// once per channel).
     pub fn to_planar(&self) -> Vec<f32> {
         let (h, w) = (self.height, self.width);
         let mut out = vec![0.0; self.channels * h * w];
-        out.par_chunks_mut(h * w)
-            .enumerate()
-            .for_each(|(c, plane)| {
-                for y in 0..h {
-                    let o = self.offset(c / LANES, y, 0) + c % LANES;
-                    for x in 0..w {
-                        plane[y * w + x] = self.data[o + x * LANES];
+        let mut planes: Vec<&mut [f32]> = out.chunks_mut(h * w).collect();
+        for b in 0..self.channels.div_ceil(LANES) {
+            let group: Vec<&mut [f32]> = planes
+                .drain(..LANES.min(self.channels - b * LANES))
+                .collect();
+            // the block's rows, each with its channels' rows of the output
+            let mut rows: Vec<Vec<&mut [f32]>> =
+                (0..h).map(|_| Vec::with_capacity(LANES)).collect();
+            for plane in group {
+                for (y, row) in plane.chunks_mut(w).enumerate() {
+                    rows[y].push(row);
+                }
+            }
+            rows.into_par_iter().enumerate().for_each(|(y, mut lanes)| {
+                let src = &self.data[self.offset(b, y, 0)..][..w * LANES];
+                for (x, px) in src.chunks_exact(LANES).enumerate() {
+                    for (lane, row) in lanes.iter_mut().enumerate() {
+                        row[x] = px[lane];
                     }
                 }
             });
+        }
         out
     }
 
