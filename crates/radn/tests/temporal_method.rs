@@ -217,7 +217,9 @@ fn feature_warping_gives_the_spatial_result_with_closed_gates_and_uses_the_windo
         let made = log
             .lines()
             .filter(|l| {
-                l.contains("encoder levels made") && l.contains(&format!("frame_{frame:04}.exr"))
+                l.contains("encoder levels made")
+                    && l.contains("image=0")
+                    && l.contains(&format!("frame_{frame:04}.exr"))
             })
             .count();
         assert_eq!(made, 1, "frame {frame} encoded {made} times:\n{log}");
