@@ -198,8 +198,9 @@ fn feature_warping_gives_the_spatial_result_with_closed_gates_and_uses_the_windo
         |m: &Path| ["--method", "temporal", "--model", m.to_str().unwrap()].map(String::from);
     let said = run("closed", &temporal(&closed).each_ref().map(String::as_str));
     assert!(said.contains("features warped"), "{said}");
-    // with the encoder's log on: each of the five frames goes through the encoder once,
-    // although five windows read each of them
+    // with the encoder's log on: each of the five frames goes through the encoder once at its
+    // own exposure, although up to five windows read each of them (and again at a centre's
+    // exposure only where the two differ by more than EXPOSURE_REUSE_STOPS)
     let r = Command::new(env!("CARGO_BIN_EXE_radn"))
         .env("RADN_OIDN_LIBRARY", "/nonexistent")
         .env("RUST_LOG", "radn_nn=debug")
@@ -217,7 +218,7 @@ fn feature_warping_gives_the_spatial_result_with_closed_gates_and_uses_the_windo
         let made = log
             .lines()
             .filter(|l| {
-                l.contains("encoder levels made")
+                l.contains("encoder levels made at its own exposure")
                     && l.contains("image=0")
                     && l.contains(&format!("frame_{frame:04}.exr"))
             })

@@ -25,9 +25,15 @@ pub struct FrameLevels {
     levels: Vec<Blocked>,
     width: usize,
     height: usize,
+    scale: f32,
 }
 
 impl FrameLevels {
+    /// The input scale the frame went through the encoder at.
+    pub fn scale(&self) -> f32 {
+        self.scale
+    }
+
     /// Bytes its maps hold.
     pub fn bytes(&self) -> usize {
         self.levels.iter().map(|m| m.data().len() * 4).sum()
@@ -160,6 +166,7 @@ impl TemporalFilter {
                 .encode(self.filter.tile_input(&planes, &tile, scale)),
             width,
             height,
+            scale,
         })
     }
 

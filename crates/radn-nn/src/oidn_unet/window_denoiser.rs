@@ -29,6 +29,13 @@ use crate::oidn_unet::temporal_filter::{FrameLevels, TemporalFilter};
 /// blocks' working maps and the decoder's (some 3 kB at 1080p with the window's frames).
 pub const DEFAULT_TILE_PIXELS: usize = DEFAULT_MAX_TILE_PIXELS;
 
+/// How far (in stops) a side frame's exposure may be from the centre's for the levels made at
+/// its own exposure to serve the centre's window: further, it goes through the encoder again
+/// at the centre's. A window mixing levels of frames at exposures half a stop or more apart
+/// loses decibels (measured: docs/research/oidn-temporal.md); a sixteenth of a stop lets
+/// slowly brightening shots reuse every frame's levels.
+pub const EXPOSURE_REUSE_STOPS: f32 = 1.0 / 16.0;
+
 /// The temporal method: a converted U-Net and how its windows are aligned.
 pub struct TemporalDenoiser {
     filter: TemporalFilter,
@@ -160,9 +167,21 @@ impl TemporalDenoiser {
             h.next_multiple_of(ALIGNMENT),
         );
         let run = |image: usize| -> Result<Plane> {
+            // the blocks mix the window's levels, so they must share the centre's exposure: a
+            // side frame's own levels serve where its exposure is within
+            // EXPOSURE_REUSE_STOPS of the centre's, else it goes through the encoder again
             let levels = frames
                 .iter()
-                .map(|f| self.levels_of(f, image))
+                .map(|f| {
+                    let own = self.levels_of(f, image)?;
+                    let stops = (own.scale() / scales[image]).log2().abs();
+                    if stops <= EXPOSURE_REUSE_STOPS {
+                        Ok(own)
+                    } else {
+                        self.encode(f, image, scales[image], "again at the centre's exposure")
+                            .map(Arc::new)
+                    }
+                })
                 .collect::<Result<Vec<_>>>()?;
             let refs: Vec<&FrameLevels> = levels.iter().map(|l| l.as_ref()).collect();
             self.filter
@@ -184,45 +203,54 @@ impl TemporalDenoiser {
         })
     }
 
-    /// Frame `f`'s encoder levels of its beauty (`image` 0) or of AOV `image` − 1, from the
-    /// cache or made now at the plane's own exposure.
+    /// Frame `f`'s encoder levels of its beauty (`image` 0) or of AOV `image` − 1 at the
+    /// plane's own exposure, from the cache or made now and kept.
     fn levels_of(&self, f: &Frame, image: usize) -> Result<Arc<FrameLevels>> {
         let key = (f.path.clone(), image);
         if let Some(hit) = self.cache.lock().expect("no panic while held").get(&key) {
             return Ok(hit);
         }
-        let rendered = match image {
+        let scale = self.filter.unet().autoexposure(Self::rendered(f, image));
+        let levels = Arc::new(self.encode(f, image, scale, "at its own exposure")?);
+        self.cache.lock().expect("no panic while held").insert(
+            key,
+            levels.clone(),
+            self.filter.frames() * (1 + f.aovs.len()),
+        );
+        Ok(levels)
+    }
+
+    /// The plane `image` of frame `f` as rendered: the beauty (0) or AOV `image` − 1.
+    fn rendered(f: &Frame, image: usize) -> &Plane {
+        match image {
             0 => &f.color,
             k => &f.aovs[k - 1].plane,
-        };
-        let plane = as_rgb(rendered);
+        }
+    }
+
+    /// Frame `f`'s encoder levels of plane `image` at input scale `scale` (`why`: for the log).
+    fn encode(&self, f: &Frame, image: usize, scale: f32, why: &str) -> Result<FrameLevels> {
+        let plane = as_rgb(Self::rendered(f, image));
         let images = UnetImages {
             color: Some(&plane),
             albedo: f.albedo.as_ref(),
             normal: f.normal.as_ref(),
         };
-        let scale = self.filter.unet().autoexposure(rendered);
         let started = std::time::Instant::now();
-        let levels =
-            Arc::new(
-                self.filter
-                    .encode_frame(&images, scale)
-                    .map_err(|e| Error::Unsupported {
-                        path: f.path.clone(),
-                        detail: e.to_string(),
-                    })?,
-            );
+        let levels = self
+            .filter
+            .encode_frame(&images, scale)
+            .map_err(|e| Error::Unsupported {
+                path: f.path.clone(),
+                detail: e.to_string(),
+            })?;
         tracing::debug!(
             frame = %f.path.display(),
             image,
-            "encoder levels made in {:.2} s ({} MB)",
+            scale,
+            "encoder levels made {why} in {:.2} s ({} MB)",
             started.elapsed().as_secs_f64(),
             levels.bytes() >> 20
-        );
-        self.cache.lock().expect("no panic while held").insert(
-            key,
-            levels.clone(),
-            self.filter.frames() * (1 + f.aovs.len()),
         );
         Ok(levels)
     }
