@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use radn_core::guide::exposure::ExposureBins;
 use radn_core::Plane;
-use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet};
+use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet, WarpSpace};
 use radn_nn::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
 use radn_nn::oidn_unet::{store, temporal_store};
 use radn_nn::{NnError, Result};
@@ -127,6 +127,10 @@ pub struct FinetuneConfig {
     /// ([`TemporalConfig::color_confidence`], kept in the model file).
     #[serde(default)]
     pub color_confidence: Option<f32>,
+    /// Where the model's windows are moved onto the centre at inference
+    /// ([`TemporalConfig::warp`], kept in the model file); training reads aligned tiles.
+    #[serde(default)]
+    pub warp: WarpSpace,
 }
 
 fn default_true() -> bool {
@@ -254,7 +258,7 @@ impl Finetune {
             frames: train.manifest.frames,
             levels: config.levels.clone(),
             color_confidence: config.color_confidence,
-            warp: Default::default(),
+            warp: config.warp,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;

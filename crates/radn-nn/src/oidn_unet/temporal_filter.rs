@@ -253,12 +253,18 @@ impl TemporalFilter {
         let plane = hh * ww;
         let map = c * plane;
         let t0 = std::time::Instant::now();
-        let mut stacked = Vec::with_capacity(t * map);
-        for m in maps {
-            stacked.extend(m.to_planar());
+        let mut stacked = vec![0.0f32; t * map];
+        for (m, dst) in maps.iter().zip(stacked.chunks_mut(map)) {
+            m.to_planar_into(dst);
         }
         if let Some(motion) = motion {
-            let at = motion.at_level(b.level);
+            let pooled;
+            let at = if b.level == 0 {
+                motion
+            } else {
+                pooled = motion.at_level(b.level);
+                &pooled
+            };
             let centre = stacked[t / 2 * map..][..map].to_vec();
             for k in (0..t).filter(|&k| k != t / 2) {
                 let warped = at.to_centre(k, &stacked[k * map..][..map], &centre);

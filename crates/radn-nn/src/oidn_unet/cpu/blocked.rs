@@ -248,8 +248,19 @@ impl Blocked {
     /// row is read once for all its channels (a pass per channel would read the whole map
     /// once per channel).
     pub fn to_planar(&self) -> Vec<f32> {
+        let mut out = vec![0.0; self.channels * self.height * self.width];
+        self.to_planar_into(&mut out);
+        out
+    }
+
+    /// [`Blocked::to_planar`] into `out` (`channels × height × width` floats).
+    pub fn to_planar_into(&self, out: &mut [f32]) {
         let (h, w) = (self.height, self.width);
-        let mut out = vec![0.0; self.channels * h * w];
+        assert_eq!(
+            out.len(),
+            self.channels * h * w,
+            "a planar map of the same size"
+        );
         let mut planes: Vec<&mut [f32]> = out.chunks_mut(h * w).collect();
         for b in 0..self.channels.div_ceil(LANES) {
             let group: Vec<&mut [f32]> = planes
@@ -272,7 +283,6 @@ impl Blocked {
                 }
             });
         }
-        out
     }
 
     /// A map from planar `channels × height × width` floats.

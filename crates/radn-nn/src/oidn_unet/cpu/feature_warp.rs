@@ -93,38 +93,56 @@ impl HostMotion {
         let plane = w * h;
         assert_eq!(features.len() % plane, 0, "features at this level's scale");
         assert_eq!(features.len(), centre.len(), "the centre's features alike");
-        let channels = features.len() / plane;
         let (ox, oy) = self.offsets[frame].split_at(plane);
         let conf = &self.confidence[frame];
-        let mut out = vec![0.0f32; features.len()];
-        // each output row with every channel's row of it: the taps are found once per pixel
-        let mut rows: Vec<Vec<&mut [f32]>> = (0..h).map(|_| Vec::with_capacity(channels)).collect();
-        for channel in out.chunks_mut(plane) {
-            for (y, row) in channel.chunks_mut(w).enumerate() {
-                rows[y].push(row);
-            }
-        }
-        rows.into_par_iter().enumerate().for_each(|(y, mut dst)| {
-            for x in 0..w {
-                let i = y * w + x;
+        // each pixel's taps, found once for every channel: the top-left source pixel and the
+        // offsets to its right and lower neighbours (0 at the map's edge), and the weights
+        let taps: Vec<Tap> = (0..plane)
+            .into_par_iter()
+            .map(|i| {
+                let (x, y) = (i % w, i / w);
                 let sx = (x as f32 + ox[i]).clamp(0.0, (w - 1) as f32);
                 let sy = (y as f32 + oy[i]).clamp(0.0, (h - 1) as f32);
                 let (x0, y0) = (sx.floor() as usize, sy.floor() as usize);
-                let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-                let (fx, fy) = (sx - x0 as f32, sy - y0 as f32);
-                let (i00, i01, i10, i11) = (y0 * w + x0, y0 * w + x1, y1 * w + x0, y1 * w + x1);
-                let k = conf[i];
-                for (c, row) in dst.iter_mut().enumerate() {
-                    let src = &features[c * plane..][..plane];
-                    let top = src[i00] * (1.0 - fx) + src[i01] * fx;
-                    let bottom = src[i10] * (1.0 - fx) + src[i11] * fx;
-                    let warped = top * (1.0 - fy) + bottom * fy;
-                    row[x] = warped * k + centre[c * plane + i] * (1.0 - k);
+                Tap {
+                    at: (y0 * w + x0) as u32,
+                    right: u32::from(x0 + 1 < w),
+                    down: if y0 + 1 < h { w as u32 } else { 0 },
+                    fx: sx - x0 as f32,
+                    fy: sy - y0 as f32,
                 }
+            })
+            .collect();
+        let mut out = vec![0.0f32; features.len()];
+        out.par_chunks_mut(w).enumerate().for_each(|(row, dst)| {
+            let (c, y) = (row / h, row % h);
+            let src = &features[c * plane..][..plane];
+            let mid = &centre[c * plane + y * w..][..w];
+            let taps = &taps[y * w..][..w];
+            let conf = &conf[y * w..][..w];
+            for x in 0..w {
+                let t = taps[x];
+                let i = t.at as usize;
+                let (r, d) = (t.right as usize, t.down as usize);
+                let top = src[i] * (1.0 - t.fx) + src[i + r] * t.fx;
+                let bottom = src[i + d] * (1.0 - t.fx) + src[i + d + r] * t.fx;
+                let warped = top * (1.0 - t.fy) + bottom * t.fy;
+                dst[x] = warped * conf[x] + mid[x] * (1.0 - conf[x]);
             }
         });
         out
     }
+}
+
+/// One pixel's bilinear lookup: the top-left source index, the steps to the right and lower
+/// neighbours, and the fractions towards them.
+#[derive(Clone, Copy)]
+struct Tap {
+    at: u32,
+    right: u32,
+    down: u32,
+    fx: f32,
+    fy: f32,
 }
 
 #[cfg(test)]
