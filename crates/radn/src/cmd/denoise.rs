@@ -217,7 +217,13 @@ pub fn run(a: Args) -> Result<()> {
             let Some(path) = a.model.as_deref() else {
                 bail!("--method temporal needs --model FILE (a model radn train wrote)");
             };
-            let d = crate::model::temporal(path)?;
+            let mut d = crate::model::temporal(path)?;
+            // --tile: the side of the network's square tiles (memory against time)
+            match a.tile {
+                Setting::Auto => {}
+                Setting::Off => d = d.with_tile_pixels(usize::MAX),
+                Setting::Value(t) => d = d.with_tile_pixels(t.saturating_mul(t)),
+            }
             println!("radn: temporal U-Net path: {}", d.summary());
             (Box::new(d), None, None)
         }
