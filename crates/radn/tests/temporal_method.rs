@@ -126,7 +126,7 @@ fn the_temporal_method_needs_a_converted_model() {
 
 #[test]
 fn banded_denoising_equals_whole_frame_denoising() {
-    // the sample stacked to 300 rows with AOVs and alpha; blocks at levels 0-2 (a halo of 144
+    // the sample stacked to 300 rows with AOVs and alpha; blocks at levels 0-2 (a halo of 128
     // rows), so that 32-row bands leave much of each frame unread: each band aligns only the
     // rows its window reaches and runs at the whole frame's exposures
     let d = tempfile::tempdir().unwrap();
