@@ -1,9 +1,12 @@
 //! `radn denoise --method temporal`: OIDN's U-Net converted into the paper's spatio-temporal
-//! network ([`TemporalUnet`](crate::oidn_unet::temporal::TemporalUnet), fine-tuned by `radn train`) over each frame's window. The window
-//! is aligned onto its centre frame by the renderer's motion with radn's confidence and centre
-//! mixing (as the training tiles were), then the network runs on the aligned frames
-//! ([`TemporalFilter`]). Each AOV goes through the same network over its aligned window with
-//! the same auxiliaries (one-channel AOVs as grey); alpha is kept as rendered.
+//! network ([`TemporalUnet`](crate::oidn_unet::temporal::TemporalUnet), fine-tuned by
+//! `radn train`) over each frame's window, moved onto its centre frame by the renderer's motion
+//! with radn's confidence. With `warp = "features"` (the model's) each frame goes through the
+//! encoder once and its levels are warped to the centre; with `"images"` the window is aligned
+//! as images (with centre mixing, as the training tiles were) and every aligned frame goes
+//! through the encoder; frames that run band by band warp images. Each AOV goes through the
+//! same network with the same auxiliaries (one-channel AOVs as grey); alpha is kept as
+//! rendered.
 
 use std::borrow::Cow;
 use std::ops::Range;
