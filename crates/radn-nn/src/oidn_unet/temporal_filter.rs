@@ -334,86 +334,119 @@ mod tests {
         })
     }
 
-    /// The CPU path equals burn's forward of the same network (gates open, so the blocks'
-    /// weights count), whole and in tiles.
-    #[test]
-    fn the_cpu_path_equals_burns_forward() {
+    /// OIDN's standard U-Net converted over 3 frames with blocks at `levels` (their weights
+    /// from `seed`) and every gate at `gate`.
+    fn converted(levels: Vec<usize>, seed: u64, gate: f32) -> TemporalUnet {
         let device = Device::flex();
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
         let unet = crate::oidn_unet::store::load(&path, &device).unwrap();
-        device.seed(5);
-        let net = TemporalUnet::convert(
-            unet,
-            TemporalConfig {
-                frames: 3,
-                levels: vec![0, 1, 4],
-                color_confidence: None,
-                warp: Default::default(),
-            },
-            &device,
-        )
-        .unwrap()
-        .with_gates(0.7);
-        let (w, h) = (40, 36);
-        let colors: Vec<Plane> = (0..3).map(|k| plane(w, h, k, 2.0)).collect();
-        let albedo: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect();
-        let normal: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect();
-        let window: Vec<UnetImages> = (0..3)
-            .map(|k| UnetImages {
-                color: Some(&colors[k]),
-                albedo: Some(&albedo[k]),
-                normal: Some(&normal[k]),
-            })
-            .collect();
-        let filter = TemporalFilter::new(&net);
-        let scale = filter.unet().autoexposure(&colors[1]);
-        let whole = filter.run(&window, scale, usize::MAX).unwrap();
-        // burn: the processed window, padded to 48×48 with zeros as the filter pads
-        let (pw, ph) = (48, 48);
-        let mut x = vec![0.0f32; 3 * 9 * ph * pw];
-        for k in 0..3 {
-            for (j, (p, proc_)) in [
-                (&colors[k], HDR_BEAUTY),
-                (&albedo[k], AUX_ALBEDO),
-                (&normal[k], AUX_NORMAL),
-            ]
-            .into_iter()
-            .enumerate()
-            {
-                for c in 0..3 {
-                    for yy in 0..h {
-                        for xx in 0..w {
-                            x[((k * 9 + j * 3 + c) * ph + yy) * pw + xx] =
-                                proc_.input(p.get(xx, yy, c), scale);
+        device.seed(seed);
+        let config = TemporalConfig {
+            frames: 3,
+            levels,
+            color_confidence: None,
+            warp: Default::default(),
+        };
+        TemporalUnet::convert(unet, config, &device)
+            .unwrap()
+            .with_gates(gate)
+    }
+
+    /// A 3-frame window of beauty, albedo and normal planes.
+    struct Frames {
+        colors: Vec<Plane>,
+        albedo: Vec<Plane>,
+        normal: Vec<Plane>,
+    }
+
+    impl Frames {
+        fn new(w: usize, h: usize) -> Self {
+            Self {
+                colors: (0..3).map(|k| plane(w, h, k, 2.0)).collect(),
+                albedo: (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect(),
+                normal: (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect(),
+            }
+        }
+
+        fn window(&self) -> Vec<UnetImages<'_>> {
+            (0..3)
+                .map(|k| UnetImages {
+                    color: Some(&self.colors[k]),
+                    albedo: Some(&self.albedo[k]),
+                    normal: Some(&self.normal[k]),
+                })
+                .collect()
+        }
+
+        /// The processed window as burn's input `[3, 9, ph, pw]`, padded with zeros as the
+        /// filter pads.
+        fn processed(&self, scale: f32, pw: usize, ph: usize) -> Tensor<4> {
+            let (w, h) = (self.colors[0].width(), self.colors[0].height());
+            let mut x = vec![0.0f32; 3 * 9 * ph * pw];
+            for k in 0..3 {
+                let images = [
+                    (&self.colors[k], HDR_BEAUTY),
+                    (&self.albedo[k], AUX_ALBEDO),
+                    (&self.normal[k], AUX_NORMAL),
+                ];
+                for (j, (p, proc_)) in images.into_iter().enumerate() {
+                    for c in 0..3 {
+                        for yy in 0..h {
+                            for xx in 0..w {
+                                x[((k * 9 + j * 3 + c) * ph + yy) * pw + xx] =
+                                    proc_.input(p.get(xx, yy, c), scale);
+                            }
                         }
                     }
                 }
             }
+            Tensor::from_data(TensorData::new(x, [3, 9, ph, pw]), &Device::flex())
         }
-        let x: Tensor<4> = Tensor::from_data(TensorData::new(x, [3, 9, ph, pw]), &device);
-        let y = net
-            .forward(x, None)
-            .into_data()
-            .try_to_vec::<f32>()
-            .unwrap();
+    }
+
+    /// The largest difference between `out` and burn's output `y` (`[1, 3, ph, pw]`, before
+    /// the output processing at `scale`) over `out`'s pixels.
+    fn from_burn(out: &Plane, y: Tensor<4>, scale: f32) -> f32 {
+        let [_, _, ph, pw] = y.dims();
+        let y = y.into_data().try_to_vec::<f32>().unwrap();
         let mut worst = 0.0f32;
         for c in 0..3 {
-            for yy in 0..h {
-                for xx in 0..w {
+            for yy in 0..out.height() {
+                for xx in 0..out.width() {
                     let want = HDR_BEAUTY.output(y[(c * ph + yy) * pw + xx], scale);
-                    worst = worst.max((whole.get(xx, yy, c) - want).abs());
+                    worst = worst.max((out.get(xx, yy, c) - want).abs());
                 }
             }
         }
+        worst
+    }
+
+    /// The largest difference between two RGB planes.
+    fn largest(a: &Plane, b: &Plane) -> f32 {
+        (0..3)
+            .flat_map(|c| a.channel(c).iter().zip(b.channel(c)))
+            .map(|(x, y)| (x - y).abs())
+            .fold(0.0f32, f32::max)
+    }
+
+    /// The CPU path equals burn's forward of the same network (gates open, so the blocks'
+    /// weights count), whole and in tiles.
+    #[test]
+    fn the_cpu_path_equals_burns_forward() {
+        let net = converted(vec![0, 1, 4], 5, 0.7);
+        let frames = Frames::new(40, 36);
+        let window = frames.window();
+        let filter = TemporalFilter::new(&net);
+        let scale = filter.unet().autoexposure(&frames.colors[1]);
+        let whole = filter.run(&window, scale, usize::MAX).unwrap();
+        let y = net.forward(frames.processed(scale, 48, 48), None);
+        let worst = from_burn(&whole, y, scale);
         assert!(worst < 1e-4, "largest difference {worst}");
         // the gates matter: closed, the result is the per-frame U-Net's and differs
         let closed = TemporalFilter::new(&net.clone().with_gates(0.0));
         let per_frame = closed.run(&window, scale, usize::MAX).unwrap();
-        let moved = (0..3)
-            .flat_map(|c| per_frame.channel(c).iter().zip(whole.channel(c)))
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let moved = largest(&per_frame, &whole);
         assert!(moved > 1e-3, "the open gates changed nothing ({moved})");
         let single = closed.unet().run(&window[1], Some(scale)).unwrap();
         assert_eq!(per_frame.channel(0), single.channel(0));
@@ -423,36 +456,12 @@ mod tests {
     /// output; the U-Net's overlap alone does not (the blocks read further).
     #[test]
     fn tiled_output_equals_whole_frame_output() {
-        let device = Device::flex();
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
-        let unet = crate::oidn_unet::store::load(&path, &device).unwrap();
-        device.seed(9);
-        let net = TemporalUnet::convert(
-            unet,
-            TemporalConfig {
-                frames: 3,
-                levels: vec![0, 2, 4],
-                color_confidence: None,
-                warp: Default::default(),
-            },
-            &device,
-        )
-        .unwrap()
-        .with_gates(0.8);
+        let net = converted(vec![0, 2, 4], 9, 0.8);
         let filter = TemporalFilter::new(&net);
         let (w, h) = (720, 40);
-        let colors: Vec<Plane> = (0..3).map(|k| plane(w, h, k, 2.0)).collect();
-        let albedo: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect();
-        let normal: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect();
-        let window: Vec<UnetImages> = (0..3)
-            .map(|k| UnetImages {
-                color: Some(&colors[k]),
-                albedo: Some(&albedo[k]),
-                normal: Some(&normal[k]),
-            })
-            .collect();
-        let scale = filter.unet().autoexposure(&colors[1]);
+        let frames = Frames::new(w, h);
+        let window = frames.window();
+        let scale = filter.unet().autoexposure(&frames.colors[1]);
         let whole = filter.run(&window, scale, usize::MAX).unwrap();
         let ov = filter.reach().next_multiple_of(ALIGNMENT);
         assert!(ov > filter.unet().config().layers.overlap());
@@ -460,22 +469,12 @@ mod tests {
         let tiles = filter.tiles_within(w, h, budget);
         assert!(tiles.len() >= 3, "{} tiles", tiles.len());
         let tiled = filter.run(&window, scale, budget).unwrap();
-        let largest = |a: &Plane, b: &Plane| {
-            (0..3)
-                .flat_map(|c| a.channel(c).iter().zip(b.channel(c)))
-                .map(|(x, y)| (x - y).abs())
-                .fold(0.0f32, f32::max)
-        };
         assert_eq!(largest(&whole, &tiled), 0.0, "tiled differs from whole");
         // the U-Net's own overlap misses what the blocks read
+        let unet_overlap = filter.unet().config().layers.overlap();
         let short = filter
             .run_in_tiles(&window, scale, |w, h| {
-                filter.unet().tiles_overlapping(
-                    w,
-                    h,
-                    budget,
-                    filter.unet().config().layers.overlap(),
-                )
+                filter.unet().tiles_overlapping(w, h, budget, unet_overlap)
             })
             .unwrap();
         // (the far rows weigh little through these weights: some 4e-6, so only exactness shows it)
@@ -490,27 +489,9 @@ mod tests {
     fn the_feature_warped_cpu_path_equals_burns_forward_with_motion() {
         use crate::oidn_unet::cpu::feature_warp::HostMotion;
         use crate::oidn_unet::feature_warp::WindowMotion;
-        let device = Device::flex();
-        let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-            .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
-        let unet = crate::oidn_unet::store::load(&path, &device).unwrap();
-        device.seed(3);
-        let net = TemporalUnet::convert(
-            unet,
-            TemporalConfig {
-                frames: 3,
-                levels: vec![0, 1, 3],
-                color_confidence: None,
-                warp: Default::default(),
-            },
-            &device,
-        )
-        .unwrap()
-        .with_gates(0.6);
+        let net = converted(vec![0, 1, 3], 3, 0.6);
         let (w, h) = (48, 32);
-        let colors: Vec<Plane> = (0..3).map(|k| plane(w, h, k, 2.0)).collect();
-        let albedo: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 5, 0.8)).collect();
-        let normal: Vec<Plane> = (0..3).map(|k| plane(w, h, k + 9, 1.0)).collect();
+        let frames = Frames::new(w, h);
         let flows: Vec<Plane> = (0..3)
             .map(|k| {
                 Plane::from_fn(w, h, 2, |x, y, c| {
@@ -533,15 +514,9 @@ mod tests {
                 })
             })
             .collect();
-        let window: Vec<UnetImages> = (0..3)
-            .map(|k| UnetImages {
-                color: Some(&colors[k]),
-                albedo: Some(&albedo[k]),
-                normal: Some(&normal[k]),
-            })
-            .collect();
+        let window = frames.window();
         let filter = TemporalFilter::new(&net);
-        let scale = filter.unet().autoexposure(&colors[1]);
+        let scale = filter.unet().autoexposure(&frames.colors[1]);
         let motion = HostMotion::padded(
             &flows.iter().collect::<Vec<_>>(),
             &confs.iter().collect::<Vec<_>>(),
@@ -549,54 +524,20 @@ mod tests {
             h,
         );
         let cpu = filter.run_warped(&window, &motion, scale).unwrap();
-        let mut x = vec![0.0f32; 3 * 9 * h * w];
-        for k in 0..3 {
-            for (j, (p, proc_)) in [
-                (&colors[k], HDR_BEAUTY),
-                (&albedo[k], AUX_ALBEDO),
-                (&normal[k], AUX_NORMAL),
-            ]
-            .into_iter()
-            .enumerate()
-            {
-                for c in 0..3 {
-                    for (i, v) in p.channel(c).iter().enumerate() {
-                        x[(k * 9 + j * 3 + c) * h * w + i] = proc_.input(*v, scale);
-                    }
-                }
-            }
-        }
-        let tensor = |v: Vec<f32>, shape: [usize; 4]| -> Tensor<4> {
-            Tensor::from_data(TensorData::new(v, shape), &device)
+        let stacked = |planes: &[Plane], channels: usize| -> Tensor<4> {
+            let data = planes.iter().flat_map(|f| f.data().to_vec()).collect();
+            Tensor::from_data(TensorData::new(data, [3, channels, h, w]), &Device::flex())
         };
         let m = WindowMotion {
-            offsets: tensor(
-                flows.iter().flat_map(|f| f.data().to_vec()).collect(),
-                [3, 2, h, w],
-            ),
-            confidence: tensor(
-                confs.iter().flat_map(|f| f.data().to_vec()).collect(),
-                [3, 1, h, w],
-            ),
+            offsets: stacked(&flows, 2),
+            confidence: stacked(&confs, 1),
         };
-        let y = net
-            .forward(tensor(x, [3, 9, h, w]), Some(&m))
-            .into_data()
-            .try_to_vec::<f32>()
-            .unwrap();
-        let mut worst = 0.0f32;
-        for c in 0..3 {
-            for (i, v) in cpu.channel(c).iter().enumerate() {
-                worst = worst.max((v - HDR_BEAUTY.output(y[c * h * w + i], scale)).abs());
-            }
-        }
+        let y = net.forward(frames.processed(scale, w, h), Some(&m));
+        let worst = from_burn(&cpu, y, scale);
         assert!(worst < 1e-4, "largest difference {worst}");
         // the motion matters: the same frames without it differ
         let still = filter.run(&window, scale, usize::MAX).unwrap();
-        let moved = (0..3)
-            .flat_map(|c| still.channel(c).iter().zip(cpu.channel(c)))
-            .map(|(a, b)| (a - b).abs())
-            .fold(0.0f32, f32::max);
+        let moved = largest(&still, &cpu);
         assert!(moved > 1e-3, "the motion changed nothing ({moved})");
     }
 }
