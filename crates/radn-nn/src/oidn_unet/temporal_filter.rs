@@ -40,6 +40,17 @@ impl FrameLevels {
     }
 }
 
+/// A window's motion at the levels of a converted network's blocks
+/// ([`TemporalFilter::motion_levels`]).
+pub struct MotionLevels(Vec<Option<HostMotion>>);
+
+impl MotionLevels {
+    /// The motion at level `level`, where the network has a block there (or at level 0).
+    fn at(&self, level: usize) -> Option<&HostMotion> {
+        self.0.get(level).and_then(Option::as_ref)
+    }
+}
+
 /// A converted U-Net's weights ready to run on aligned windows.
 pub struct TemporalFilter {
     filter: UnetFilter,
@@ -120,7 +131,7 @@ impl TemporalFilter {
                 .iter()
                 .map(|p| self.filter.encode(self.filter.tile_input(p, &tile, scale)))
                 .collect();
-            let result = self.filter.decode(self.blend(levels, None));
+            let result = self.filter.decode(self.blend(levels));
             self.filter.tile_output(&result, &tile, scale, &mut out);
             self.filter.scratch().recycle(result);
         }
@@ -135,7 +146,7 @@ impl TemporalFilter {
     pub fn run_warped(
         &self,
         window: &[UnetImages],
-        motion: &HostMotion,
+        motion: HostMotion,
         scale: f32,
     ) -> Result<Plane, FilterError> {
         assert_eq!(
@@ -147,7 +158,8 @@ impl TemporalFilter {
             .iter()
             .map(|images| self.encode_frame(images, scale))
             .collect::<Result<Vec<_>, _>>()?;
-        self.decode_warped(&levels.iter().collect::<Vec<_>>(), motion, scale)
+        let motion = self.motion_levels(motion);
+        self.decode_warped(&levels.iter().collect::<Vec<_>>(), &motion, scale)
     }
 
     /// One frame's encoder levels over the whole frame (padded to a multiple of 16) at input
@@ -176,7 +188,7 @@ impl TemporalFilter {
     pub fn decode_warped(
         &self,
         window: &[&FrameLevels],
-        motion: &HostMotion,
+        motion: &MotionLevels,
         scale: f32,
     ) -> Result<Plane, FilterError> {
         let (w, h) = (window[0].width, window[0].height);
@@ -193,7 +205,7 @@ impl TemporalFilter {
             levels.push(match blends.next_if(|b| b.level == l) {
                 Some(b) => {
                     let maps: Vec<&Blocked> = window.iter().map(|f| &f.levels[l]).collect();
-                    self.blend_level(b, &maps, Some(motion))
+                    self.blend_level(b, &maps, motion.at(l))
                 }
                 None => own.clone(),
             });
@@ -205,6 +217,19 @@ impl TemporalFilter {
         self.filter.scratch().recycle(result);
         self.filter.scratch().trim();
         Ok(out)
+    }
+
+    /// A window's full-resolution motion (`motion`, padded to the frame's multiple of 16) at
+    /// each level that has a block: pooled once per window, for the beauty and every AOV.
+    pub fn motion_levels(&self, motion: HostMotion) -> MotionLevels {
+        let deepest = self.blends.iter().map(|b| b.level).max().unwrap_or(0);
+        let mut levels: Vec<Option<HostMotion>> = (0..=deepest)
+            .map(|l| {
+                (l > 0 && self.blends.iter().any(|b| b.level == l)).then(|| motion.at_level(l))
+            })
+            .collect();
+        levels[0] = Some(motion);
+        MotionLevels(levels)
     }
 
     /// The one tile of a whole `w × h` frame.
@@ -222,12 +247,12 @@ impl TemporalFilter {
 
     /// The window's encoder levels (one list per frame, aligned) blended into the centre
     /// frame's.
-    fn blend(&self, mut levels: Vec<Vec<Blocked>>, motion: Option<&HostMotion>) -> Vec<Blocked> {
+    fn blend(&self, mut levels: Vec<Vec<Blocked>>) -> Vec<Blocked> {
         let t = self.frames;
         let scratch = self.filter.scratch();
         for b in &self.blends {
             let maps: Vec<&Blocked> = levels.iter().map(|f| &f[b.level]).collect();
-            let mixed = self.blend_level(b, &maps, motion);
+            let mixed = self.blend_level(b, &maps, None);
             scratch.recycle(std::mem::replace(&mut levels[t / 2][b.level], mixed));
         }
         let centre = levels.swap_remove(t / 2);
@@ -240,8 +265,8 @@ impl TemporalFilter {
     }
 
     /// One blended level: the window's maps at that level (`maps`, one per frame; with
-    /// `motion`, side frames' are first warped to the centre), the block's result for the
-    /// centre let into the centre's map through the gate.
+    /// `motion`, the window's motion at that level, side frames' are first warped to the
+    /// centre), the block's result for the centre let into the centre's map through the gate.
     fn blend_level(
         &self,
         b: &HostBlend,
@@ -257,14 +282,7 @@ impl TemporalFilter {
         for (m, dst) in maps.iter().zip(stacked.chunks_mut(map)) {
             m.to_planar_into(dst);
         }
-        if let Some(motion) = motion {
-            let pooled;
-            let at = if b.level == 0 {
-                motion
-            } else {
-                pooled = motion.at_level(b.level);
-                &pooled
-            };
+        if let Some(at) = motion {
             let centre = stacked[t / 2 * map..][..map].to_vec();
             for k in (0..t).filter(|&k| k != t / 2) {
                 let warped = at.to_centre(k, &stacked[k * map..][..map], &centre);
@@ -523,7 +541,7 @@ mod tests {
             w,
             h,
         );
-        let cpu = filter.run_warped(&window, &motion, scale).unwrap();
+        let cpu = filter.run_warped(&window, motion, scale).unwrap();
         let stacked = |planes: &[Plane], channels: usize| -> Tensor<4> {
             let data = planes.iter().flat_map(|f| f.data().to_vec()).collect();
             Tensor::from_data(TensorData::new(data, [3, channels, h, w]), &Device::flex())

@@ -163,12 +163,12 @@ impl TemporalDenoiser {
         let centre = window[self.radius()].expect("the centre frame is present");
         let frames: Vec<&Frame> = window.iter().map(|f| f.unwrap_or(centre)).collect();
         let (w, h) = (centre.width(), centre.height());
-        let motion = HostMotion::padded(
+        let motion = self.filter.motion_levels(HostMotion::padded(
             &win.frames.iter().map(|f| &f.flow).collect::<Vec<_>>(),
             &win.frames.iter().map(|f| &f.confidence).collect::<Vec<_>>(),
             w.next_multiple_of(ALIGNMENT),
             h.next_multiple_of(ALIGNMENT),
-        );
+        ));
         let run = |image: usize| -> Result<Plane> {
             // the blocks mix the window's levels, so they must share the centre's exposure: a
             // side frame's own levels serve where its exposure is within
