@@ -29,14 +29,14 @@ use crate::oidn_unet::temporal_filter::{FrameLevels, TemporalFilter};
 
 /// The network's tiles hold at most this many pixels (overlap included) unless set: a 1080p
 /// frame runs as one tile. Each pixel of a tile holds every window frame's encoder levels, the
-/// blocks' working maps and the decoder's (some 3 kB at 1080p with the window's frames).
+/// blocks' working maps and the decoder's, so `--tile` trades memory for time.
 pub const DEFAULT_TILE_PIXELS: usize = DEFAULT_MAX_TILE_PIXELS;
 
 /// How far (in stops) a side frame's exposure may be from the centre's for the levels made at
 /// its own exposure to serve the centre's window: further, it goes through the encoder again
-/// at the centre's. A window mixing levels of frames at exposures half a stop or more apart
-/// loses decibels (measured: docs/research/oidn-temporal.md); a sixteenth of a stop lets
-/// slowly brightening shots reuse every frame's levels.
+/// at the centre's, since the blocks were trained on windows at one exposure. Small enough that
+/// reuse changes nothing measurable, large enough that slowly brightening shots reuse every
+/// frame's levels (docs/research/oidn-temporal.md).
 pub const EXPOSURE_REUSE_STOPS: f32 = 1.0 / 16.0;
 
 /// The temporal method: a converted U-Net and how its windows are aligned.
