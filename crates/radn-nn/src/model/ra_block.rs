@@ -296,48 +296,58 @@ mod tests {
     }
 
     /// The centre-only CPU path gives the whole block's centre map, and the centre reads
-    /// exactly [`RobustAverage::centre_reach`] pixels: a change that far away moves it, one
-    /// pixel further does not.
+    /// exactly [`RobustAverage::centre_reach`] pixels: a change that far away can move it, one
+    /// pixel further never does. Whether one random block passes a change along its longest
+    /// path depends on its ReLUs, its gates and which frames the robust mean drops (about a third
+    /// of random blocks do), so 32 blocks are drawn: none may read further, and one must read
+    /// that far.
     #[test]
     fn the_centre_alone_equals_the_whole_block_and_reads_its_reach() {
         let device = Device::flex();
-        let block = RobustAverage::new(8, 5, &device).with_weight_bias(0.0);
         let (t, c, h, w) = (5, 8, 1, 31);
         let input = |bump: Option<usize>| -> Vec<f32> {
             (0..t * c * h * w)
                 .map(|i| {
                     let x = i % w;
+                    let frame = i / (c * h * w);
                     let v = ((i * 7919) % 211) as f32 / 40.0 - 2.5;
-                    // every frame and channel changes at column `bump`
-                    if Some(x) == bump {
-                        v + 3.0
-                    } else {
-                        v
+                    // frames 0, 2 and 3 change at column `bump`, by different amounts
+                    match (Some(x) == bump, frame) {
+                        (true, 0) => v + 3.0,
+                        (true, 2) => v - 2.0,
+                        (true, 3) => v + 1.5,
+                        _ => v,
                     }
                 })
                 .collect()
         };
         let x = input(None);
-        let all = block.forward_on_host(&x, [t, c, h, w]);
-        let centre = block.centre_on_host(&x, [t, c, h, w]);
-        assert_eq!(centre, all[2 * c * h * w..3 * c * h * w]);
-        let reach = block.centre_reach();
-        assert_eq!(reach, 6, "two 3×3 convolutions per step, three steps");
-        // the centre's value at column 0, with a change `d` columns away
-        let at_zero = |d: usize| -> Vec<f32> {
-            let out = block.centre_on_host(&input(Some(d)), [t, c, h, w]);
-            (0..c).map(|k| out[k * h * w]).collect()
-        };
-        let base: Vec<f32> = (0..c).map(|k| centre[k * h * w]).collect();
-        assert_ne!(
-            at_zero(reach),
-            base,
-            "a change at the reach moves the centre"
-        );
-        assert_eq!(
-            at_zero(reach + 1),
-            base,
-            "a change beyond the reach does not"
+        let mut reached = 0;
+        for _ in 0..32 {
+            let block = RobustAverage::new(8, 5, &device).with_weight_bias(0.0);
+            let all = block.forward_on_host(&x, [t, c, h, w]);
+            let centre = block.centre_on_host(&x, [t, c, h, w]);
+            assert_eq!(centre, all[2 * c * h * w..3 * c * h * w]);
+            let reach = block.centre_reach();
+            assert_eq!(reach, 6, "two 3×3 convolutions per step, three steps");
+            // the centre's value at column 0, with a change `d` columns away
+            let at_zero = |d: usize| -> Vec<f32> {
+                let out = block.centre_on_host(&input(Some(d)), [t, c, h, w]);
+                (0..c).map(|k| out[k * h * w]).collect()
+            };
+            let base: Vec<f32> = (0..c).map(|k| centre[k * h * w]).collect();
+            assert_eq!(
+                at_zero(reach + 1),
+                base,
+                "a change beyond the reach does not move the centre"
+            );
+            if at_zero(reach) != base {
+                reached += 1;
+            }
+        }
+        assert!(
+            reached > 0,
+            "a change at the reach moved the centre in none of 32 random blocks"
         );
     }
 }
