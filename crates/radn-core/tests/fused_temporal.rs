@@ -98,6 +98,7 @@ fn run_in(out: &Path, frames: Vec<i64>, fuse: bool, bands: Bands) {
             ..TemporalStabilizer::new(0.3, 0.0005, 2)
         }),
         fuse_temporal: fuse,
+        motion: radn_core::run::motion::MotionChoice::Auto,
     };
     let report = run.run(&WindowMean, |_| {}).unwrap();
     assert!(report.written > 0);
@@ -173,6 +174,7 @@ fn a_fused_temporal_pass_writes_what_two_passes_write() {
         bands: Bands::Never,
         stabilize: None,
         fuse_temporal: true,
+        motion: radn_core::run::motion::MotionChoice::Auto,
     }
     .run(&WindowMean, |_| {})
     .unwrap();

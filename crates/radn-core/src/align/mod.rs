@@ -2,6 +2,7 @@
 //! motion, each with a confidence plane, optionally mixed towards the centre by confidence.
 
 pub mod confidence;
+pub mod estimate;
 pub mod motion;
 pub mod warp;
 

@@ -31,7 +31,14 @@ pub(crate) fn run_fused(
     mut progress: impl FnMut(f64, usize),
 ) -> Result<JobReport> {
     let files: Vec<PathBuf> = job.inputs.iter().map(|(_, p)| p.clone()).collect();
-    let mut sweep = WindowSweep::new(method, &job.reader, &files, job.guides.clone(), None);
+    let mut sweep = WindowSweep::new(
+        method,
+        &job.reader,
+        &files,
+        job.guides.clone(),
+        None,
+        job.motion,
+    );
     let oidn_guides = matches!(job.guides, JobGuides::Oidn { .. });
     let rt = temporal.radius();
     // results as the temporal pass reads them, and the decoded inputs of outputs to write

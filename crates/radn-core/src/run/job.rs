@@ -10,6 +10,7 @@ use std::ops::Range;
 use std::path::{Path, PathBuf};
 use std::time::{Duration, Instant};
 
+use crate::align::estimate::{EstimateParams, SignalBuilder};
 use crate::align::window_indices;
 use crate::error::{Error, Result};
 use crate::guide::JobGuides;
@@ -23,6 +24,7 @@ use crate::run::banding::{
     frame_bands, hop_reach, window_band_rows, FrameBand, FrameStats, MotionReach, STATS_ROWS,
 };
 use crate::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
+use crate::run::motion::{MotionChoice, MotionSource, SequenceMotion};
 use crate::run::row_store::{FrameStore, RowStore};
 use crate::run::sweep::WindowSweep;
 
@@ -97,6 +99,8 @@ pub struct SequenceJob {
     /// ([`WindowDenoiser::needs_rendered`]) gets them from these. `None`: the inputs are
     /// the frames as rendered.
     pub rendered: Option<Vec<PathBuf>>,
+    /// Which motion windows are aligned with.
+    pub motion: MotionChoice,
 }
 
 /// What a run did.
@@ -230,6 +234,7 @@ impl SequenceJob {
             &files,
             self.guides.clone(),
             self.rendered.as_deref(),
+            self.motion,
         );
         let mut report = JobReport::default();
         let total = self.output_count();
@@ -277,9 +282,14 @@ impl SequenceJob {
         k: usize,
         decoded: &BTreeMap<usize, FrameStore>,
         stats: &BTreeMap<usize, FrameStats>,
+        motion: &SequenceMotion,
         height: usize,
     ) -> Result<Option<f32>> {
-        let reach = stats[&k].reach;
+        let reach = if motion.estimating() {
+            motion.reach(k)
+        } else {
+            stats[&k].reach
+        };
         // the neighbours decoded, each with its own histogram; each band of the frame read once
         let mut neighbours: Vec<(&FrameStore, Neighbour, usize, RatioHistogram)> = [
             (k.checked_sub(1), Neighbour::Previous, reach.prev),
@@ -296,7 +306,10 @@ impl SequenceJob {
         }
         for y0 in (0..height).step_by(STATS_ROWS) {
             let rows = y0..(y0 + STATS_ROWS).min(height);
-            let frame = decoded[&k].read(rows.clone())?;
+            let mut frame = decoded[&k].read(rows.clone())?;
+            if motion.estimating() {
+                motion.attach(k, &mut frame, rows.clone());
+            }
             if frame.variance.is_none() {
                 return Ok(None);
             }
@@ -348,6 +361,15 @@ impl SequenceJob {
         let halo = method.halo();
         tracing::debug!("band by band: {band} rows per band, {halo} rows of halo on each side");
         let frames = self.output_count();
+        // the sequence's motion: the renderer's, or estimated as each frame is decoded
+        let mut motion = SequenceMotion::new(self.motion, EstimateParams::default());
+        let name = |k: usize| {
+            let p = &self.inputs[k].1;
+            p.file_name().map_or_else(
+                || p.display().to_string(),
+                |n| n.to_string_lossy().into_owned(),
+            )
+        };
         for (done, (pos, output, finished)) in self.output_frames().enumerate() {
             super::cancel::check()?;
             let claim = (!finished).then(|| self.claim(output)).transpose()?;
@@ -356,18 +378,29 @@ impl SequenceJob {
                 progress((done + 1) as f64, frames);
                 continue;
             }
-            let idx = window_indices(pos, n, r);
+            let mut idx = window_indices(pos, n, r);
             let gathering = Instant::now();
             for &k in idx.iter().flatten() {
                 if let std::collections::btree_map::Entry::Vacant(e) = stats.entry(k) {
-                    // one decoding of the frame: its statistics, and its rows kept for its bands
+                    // one decoding of the frame: its statistics, its rows kept for its bands
+                    // and, where motion is estimated, its signal
                     let mut store: Option<FrameStore> = None;
+                    let mut signal: Option<SignalBuilder> = None;
                     let s = FrameStats::gather(
                         &self.reader,
                         &self.inputs[k].1,
                         height,
                         STATS_ROWS,
                         |y0, band| {
+                            if r > 0
+                                && motion.decide(band, &self.inputs[k].1)? != MotionSource::Renderer
+                            {
+                                signal
+                                    .get_or_insert_with(|| {
+                                        SignalBuilder::new(width, height, motion.params())
+                                    })
+                                    .add_rows(y0, band);
+                            }
                             let store = match &mut store {
                                 Some(s) => s,
                                 None => store.insert(FrameStore::new(band, height)?),
@@ -375,13 +408,19 @@ impl SequenceJob {
                             store.write(y0, band)
                         },
                     )?;
+                    if let Some(b) = signal {
+                        motion.add_signal(k, b.finish(), name);
+                    }
                     report.repaired += s.repaired;
                     e.insert(s);
                     decoded.insert(k, store.expect("a frame has rows"));
                 }
             }
+            if motion.estimating() {
+                motion.cut_window(&mut idx);
+            }
             // the centre's variance channels, checked against its neighbours
-            let scale = self.variance_scale(pos, &decoded, &stats, height)?;
+            let scale = self.variance_scale(pos, &decoded, &stats, &motion, height)?;
             if let Some(s) = scale {
                 tracing::debug!("frame {pos}: variance channels scaled by {s:.4} (checked)");
             }
@@ -437,6 +476,9 @@ impl SequenceJob {
                              features: &BTreeMap<usize, RowStore>|
              -> Result<Frame> {
                 let mut f = decoded[&k].read(rows.clone())?;
+                if motion.estimating() {
+                    motion.attach(k, &mut f, rows.clone());
+                }
                 if let (true, Some(s)) = (k == pos, scale) {
                     apply_scale(&mut f, s);
                 }
@@ -484,8 +526,18 @@ impl SequenceJob {
                 }
             }
             let computing = computing.elapsed();
-            let reach: Vec<Option<MotionReach>> =
-                idx.iter().map(|i| i.map(|k| stats[&k].reach)).collect();
+            let reach: Vec<Option<MotionReach>> = idx
+                .iter()
+                .map(|i| {
+                    i.map(|k| {
+                        if motion.estimating() {
+                            motion.reach(k)
+                        } else {
+                            stats[&k].reach
+                        }
+                    })
+                })
+                .collect();
             let hops = hop_reach(&reach);
             let started = Instant::now();
             let (mut reading, mut denoising) = (Duration::ZERO, Duration::ZERO);
@@ -545,6 +597,7 @@ impl SequenceJob {
             oidn.retain(|&k, _| k + r > pos);
             features.retain(|&k, _| k + r > pos);
             rendered.retain(|&k, _| k + r > pos);
+            motion.forget_before((pos + 1).saturating_sub(r));
             progress((done + 1) as f64, frames);
         }
         Ok(report)

@@ -7,6 +7,7 @@ pub mod denoiser;
 pub mod fused;
 pub mod job;
 pub mod memory;
+pub mod motion;
 pub mod passes;
 pub mod row_store;
 pub mod sweep;

@@ -5,6 +5,7 @@
 //! the whole sequence: every pass reads the neighbours beyond the range that its windows, and
 //! the later passes' windows, reach.
 
+use crate::run::motion::MotionChoice;
 use std::path::PathBuf;
 
 use crate::error::{Error, Result};
@@ -46,6 +47,8 @@ pub struct DenoiseRun {
     /// results kept in memory rather than written to scratch files and decoded again
     /// ([`crate::run::fused`]; the same outputs, faster). Off: always pass after pass.
     pub fuse_temporal: bool,
+    /// Which motion windows are aligned with.
+    pub motion: MotionChoice,
 }
 
 /// Where a run is: pass `pass` of `passes` has written `done` (fractional while a frame is in
@@ -139,6 +142,7 @@ impl DenoiseRun {
                 replace_denoised: last,
                 bands: self.bands,
                 rendered,
+                motion: self.motion,
             }
         };
         // the whole run is checked first, also one with nothing left to do: an output that is

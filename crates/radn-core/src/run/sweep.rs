@@ -8,13 +8,14 @@ use std::collections::BTreeMap;
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
-use crate::align::window_indices;
+use crate::align::estimate::EstimateParams;
 use crate::error::Result;
 use crate::guide::JobGuides;
 use crate::io::exr_file::ExrFile;
 use crate::io::frame::{Frame, FrameReader};
 use crate::post::variance_check::{apply_scale, frame_scale};
 use crate::run::denoiser::{Denoised, WindowDenoiser};
+use crate::run::motion::{MotionChoice, SequenceMotion};
 use crate::run::window::WindowReader;
 
 /// A method's pass over a sequence's frames, whole frame by whole frame.
@@ -38,17 +39,21 @@ pub struct SweepTimes {
 impl<'a> WindowSweep<'a> {
     /// A sweep of `method` over `files`, read by `reader`, each frame's decoded file kept for
     /// writing into, with `guides` attached and, where given, each frame as rendered from
-    /// `rendered`.
+    /// `rendered`; windows aligned with the motion `motion` chooses.
     pub fn new(
         method: &'a dyn WindowDenoiser,
         reader: &'a FrameReader,
         files: &'a [PathBuf],
         guides: JobGuides,
         rendered: Option<&'a [PathBuf]>,
+        motion: MotionChoice,
     ) -> Self {
         let mut windows = WindowReader::new(reader, files, method.radius())
             .keeping_files()
             .with_guides(guides);
+        if method.radius() > 0 {
+            windows = windows.with_motion(SequenceMotion::new(motion, EstimateParams::default()));
+        }
         if method.needs_rendered() {
             windows = windows.with_rendered(rendered.unwrap_or(files));
         }
@@ -118,7 +123,9 @@ impl<'a> WindowSweep<'a> {
         times.preparing = preparing.elapsed();
         let denoising = Instant::now();
         let out = if prepares {
-            let window: Vec<Option<&Frame>> = window_indices(pos, n, r)
+            let window: Vec<Option<&Frame>> = self
+                .windows
+                .indices(pos)
                 .iter()
                 .map(|i| i.map(|i| &self.prepared[&i]))
                 .collect();

@@ -5,11 +5,21 @@
 use std::collections::BTreeMap;
 use std::path::PathBuf;
 
+use crate::align::estimate::MotionSignal;
 use crate::align::{align_window, window_indices, AlignParams, AlignedWindow};
 use crate::error::Result;
 use crate::guide::JobGuides;
 use crate::io::exr_file::ExrFile;
 use crate::io::frame::{Frame, FrameReader};
+use crate::run::motion::{MotionSource, SequenceMotion};
+
+/// A file's name for the log.
+fn file_name(path: &std::path::Path) -> String {
+    path.file_name().map_or_else(
+        || path.display().to_string(),
+        |n| n.to_string_lossy().into_owned(),
+    )
+}
 
 /// Decoded frames of a sequence, read window by window in increasing order of the centre:
 /// a frame is decoded the first time a window reaches it and forgotten once no later window
@@ -24,6 +34,7 @@ pub struct WindowReader<'a> {
     frames: BTreeMap<usize, (Frame, Option<ExrFile>)>,
     size: Option<(usize, usize)>,
     repaired: usize,
+    motion: Option<SequenceMotion>,
 }
 
 impl<'a> WindowReader<'a> {
@@ -39,7 +50,20 @@ impl<'a> WindowReader<'a> {
             frames: BTreeMap::new(),
             size: None,
             repaired: 0,
+            motion: None,
         }
+    }
+
+    /// Aligns with `motion`'s source: the renderer's vectors, or motion estimated from the
+    /// frames as they are decoded (then windows also end at the cuts it finds).
+    pub fn with_motion(mut self, motion: SequenceMotion) -> Self {
+        self.motion = Some(motion);
+        self
+    }
+
+    /// The sequence's motion, where it is chosen ([`WindowReader::with_motion`]).
+    pub fn motion(&self) -> Option<&SequenceMotion> {
+        self.motion.as_ref()
     }
 
     /// Also keeps each frame's decoded file (every part and layer), so a result can be
@@ -84,6 +108,9 @@ impl<'a> WindowReader<'a> {
     /// frame must have the size of the first one decoded.
     pub fn load(&mut self, pos: usize, reach: usize) -> Result<()> {
         self.frames.retain(|&k, _| k + reach >= pos);
+        if let Some(m) = &mut self.motion {
+            m.forget_before(pos.saturating_sub(reach));
+        }
         for k in pos.saturating_sub(reach)..(pos + reach + 1).min(self.files.len()) {
             if let std::collections::btree_map::Entry::Vacant(e) = self.frames.entry(k) {
                 let (mut frame, file) =
@@ -109,10 +136,36 @@ impl<'a> WindowReader<'a> {
                     });
                 }
                 self.repaired += frame.repaired;
+                let mut estimated = false;
+                if let Some(m) = &mut self.motion {
+                    if m.decide(&frame, &self.files[k])? != MotionSource::Renderer {
+                        frame.motion_prev = None;
+                        frame.motion_next = None;
+                        let signal = MotionSignal::of_frame(&frame, m.params());
+                        let files = self.files;
+                        m.add_signal(k, signal, |i| file_name(&files[i]));
+                        estimated = true;
+                    }
+                }
                 e.insert((frame, self.keep_files.then_some(file)));
+                if estimated {
+                    self.attach_motion(k);
+                    if k > 0 && self.frames.contains_key(&(k - 1)) {
+                        self.attach_motion(k - 1);
+                    }
+                }
             }
         }
         Ok(())
+    }
+
+    /// Sets the estimated motion of loaded frame `k` (towards the neighbours estimated so far).
+    fn attach_motion(&mut self, k: usize) {
+        let (Some(m), Some((frame, _))) = (&self.motion, self.frames.get_mut(&k)) else {
+            return;
+        };
+        let h = frame.height();
+        m.attach(k, frame, 0..h);
     }
 
     /// The decoded frame at `pos`, if it is loaded.
@@ -143,7 +196,11 @@ impl<'a> WindowReader<'a> {
 
     /// The sequence positions of the window around `pos` (`None` beyond either end).
     pub fn indices(&self, pos: usize) -> Vec<Option<usize>> {
-        window_indices(pos, self.files.len(), self.radius)
+        let mut idx = window_indices(pos, self.files.len(), self.radius);
+        if let Some(m) = &self.motion {
+            m.cut_window(&mut idx);
+        }
+        idx
     }
 
     /// The loaded frames of the window around `pos` (`None` beyond the sequence ends).

@@ -1,5 +1,6 @@
 //! `radn denoise`: denoise an EXR sequence with the best path this machine allows.
 
+use radn_core::run::motion::MotionChoice;
 use std::path::PathBuf;
 
 use anyhow::{anyhow, bail, Result};
@@ -138,6 +139,10 @@ pub struct Args {
         help_heading = "Performance"
     )]
     pub bands: crate::input::BandsArg,
+    /// Motion the frames are aligned with: auto (the renderer's vectors where the files have
+    /// them, else estimated from the frames), renderer, or estimate.
+    #[arg(long, default_value = "auto", value_name = "SOURCE", value_parser = ["auto", "renderer", "estimate"])]
+    pub motion: String,
     /// Tiles per network call.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..),
           value_name = "N", help_heading = "Performance")]
@@ -179,7 +184,13 @@ pub fn run(a: Args) -> Result<()> {
         bail!("--input and --output are required");
     };
     let wanted = sequence_files(&input, a.frames.as_deref())?;
-    let mut reader = a.channels.reader(&wanted[0].1, Requirements::DENOISE)?;
+    let motion: MotionChoice = a.motion.parse().map_err(anyhow::Error::msg)?;
+    // the renderer's vectors are needed only where nothing else may stand in for them
+    let needs = Requirements {
+        motion: motion == MotionChoice::Renderer,
+        ..Requirements::DENOISE
+    };
+    let mut reader = a.channels.reader(&wanted[0].1, needs)?;
     reader.aovs = a.aovs.clone();
     let (method, oidn, stabilize): (Box<dyn WindowDenoiser>, _, _) = match a.method {
         Method::Classic => {
@@ -266,6 +277,7 @@ pub fn run(a: Args) -> Result<()> {
         bands: a.bands.into(),
         stabilize,
         fuse_temporal: true,
+        motion,
     };
     let t = std::time::Instant::now();
     radn_core::run::timing::take();

@@ -62,6 +62,7 @@ pub fn run(a: Args) -> Result<()> {
             replace_denoised: true,
             bands: radn_core::run::job::Bands::Auto,
             rendered: None,
+            motion: radn_core::run::motion::MotionChoice::Auto,
         });
     }
     let total: usize = jobs.iter().map(|j| j.output_count()).sum();
