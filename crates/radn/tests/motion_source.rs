@@ -10,10 +10,19 @@ use std::path::Path;
 use radn_core::eval::metrics::psnr;
 use radn_core::io::exr_file::{ExrFile, SampleKind};
 
+/// What a test sequence keeps of the renderer's motion vectors.
+#[derive(Clone, Copy, PartialEq)]
+enum Vectors {
+    Kept,
+    Dropped,
+    /// All zero, as Cycles writes them with motion blur on.
+    Zeroed,
+}
+
 /// Writes `dir/frame_{i+1:04}.exr` for each `(sample frame, mirrored)` of `frames`: the
 /// sample's 4-spp frame, mirrored left to right where asked (motion's x components negated),
-/// without its motion vectors where `vectors` is false.
-fn sequence(dir: &Path, frames: &[(usize, bool)], vectors: bool) {
+/// its motion vectors as `vectors` says.
+fn sequence(dir: &Path, frames: &[(usize, bool)], vectors: Vectors) {
     for (i, &(src, mirror)) in frames.iter().enumerate() {
         let f = ExrFile::read(common::sample().join(format!("low/frame_{src:04}.exr"))).unwrap();
         write_frame(
@@ -30,18 +39,21 @@ fn reference(src: usize, mirror: bool) -> radn_core::Plane {
     let f = ExrFile::read(common::sample().join(format!("ref/frame_{src:04}.exr"))).unwrap();
     let d = tempfile::tempdir().unwrap();
     let p = d.path().join("r.exr");
-    write_frame(&f, &p, mirror, true);
+    write_frame(&f, &p, mirror, Vectors::Kept);
     common::beauty_rgb(&ExrFile::read(&p).unwrap())
 }
 
-fn write_frame(f: &ExrFile, path: &Path, mirror: bool, vectors: bool) {
+fn write_frame(f: &ExrFile, path: &Path, mirror: bool, vectors: Vectors) {
     let (w, h) = (f.width(), f.height());
     let channels = f
         .channel_names()
         .into_iter()
-        .filter(|n| vectors || !n.contains(".Vector."))
+        .filter(|n| vectors != Vectors::Dropped || !n.contains(".Vector."))
         .map(|n| {
             let mut v = f.channel_f32(&n).unwrap();
+            if vectors == Vectors::Zeroed && n.contains(".Vector.") {
+                v.iter_mut().for_each(|x| *x = 0.0);
+            }
             if mirror {
                 for row in v.chunks_mut(w) {
                     row.reverse();
@@ -77,10 +89,15 @@ fn beauty(dir: &Path, frame: usize) -> radn_core::Plane {
 #[test]
 fn estimated_motion_scores_near_the_renderers_vectors_and_says_which_it_used() {
     let d = tempfile::tempdir().unwrap();
-    let (with, without) = (d.path().join("with"), d.path().join("without"));
+    let (with, without, zeroed) = (
+        d.path().join("with"),
+        d.path().join("without"),
+        d.path().join("zeroed"),
+    );
     let frames: Vec<(usize, bool)> = (1..=9).map(|f| (f, false)).collect();
-    sequence(&with, &frames, true);
-    sequence(&without, &frames, false);
+    sequence(&with, &frames, Vectors::Kept);
+    sequence(&without, &frames, Vectors::Dropped);
+    sequence(&zeroed, &frames, Vectors::Zeroed);
     let runs = [
         ("renderer", &with, vec![], "motion: the renderer's vectors"),
         (
@@ -94,6 +111,12 @@ fn estimated_motion_scores_near_the_renderers_vectors_and_says_which_it_used() {
             &without,
             vec![],
             "motion: estimated from the frames (the files have no motion vectors)",
+        ),
+        (
+            "auto-zero",
+            &zeroed,
+            vec![],
+            "motion: estimated from the frames (the files' motion vectors are all zero",
         ),
     ];
     let mut scores = Vec::new();
@@ -111,7 +134,7 @@ fn estimated_motion_scores_near_the_renderers_vectors_and_says_which_it_used() {
         .map(|f| psnr(&beauty(&with, f), &reference(f, false)).unwrap())
         .sum::<f64>()
         / 5.0;
-    let (renderer, estimated, auto) = (scores[0], scores[1], scores[2]);
+    let (renderer, estimated, auto, zero) = (scores[0], scores[1], scores[2], scores[3]);
     assert!(renderer > noisy + 10.0, "{renderer} vs noisy {noisy}");
     assert!(
         (estimated - renderer).abs() < 0.3,
@@ -121,6 +144,7 @@ fn estimated_motion_scores_near_the_renderers_vectors_and_says_which_it_used() {
         estimated, auto,
         "the same motion whether the vectors are ignored or absent"
     );
+    assert_eq!(estimated, zero, "... or all zero");
 }
 
 #[test]
@@ -130,8 +154,12 @@ fn a_cut_is_found_and_the_frames_beside_it_equal_sequences_that_end_there() {
     let a: Vec<(usize, bool)> = (1..=5).map(|f| (f, false)).collect();
     let b: Vec<(usize, bool)> = (5..=9).map(|f| (f, true)).collect();
     let joined: Vec<(usize, bool)> = a.iter().chain(&b).copied().collect();
-    for vectors in [false, true] {
-        let tag = if vectors { "vectors" } else { "estimated" };
+    for vectors in [Vectors::Dropped, Vectors::Kept] {
+        let tag = if vectors == Vectors::Kept {
+            "vectors"
+        } else {
+            "estimated"
+        };
         let dir = |n: &str| d.path().join(format!("{tag}-{n}"));
         sequence(&dir("a"), &a, vectors);
         sequence(&dir("b"), &b, vectors);
@@ -141,7 +169,7 @@ fn a_cut_is_found_and_the_frames_beside_it_equal_sequences_that_end_there() {
         denoise(&dir("b"), &dir("b-out"), &[]);
         let (joined_a, alone_a) = (beauty(&dir("ab-out"), 5), beauty(&dir("a-out"), 5));
         let (joined_b, alone_b) = (beauty(&dir("ab-out"), 6), beauty(&dir("b-out"), 1));
-        if vectors {
+        if vectors == Vectors::Kept {
             // the renderer's vectors lead across the cut; confidence keeps it out
             let ra = reference(5, false);
             let rb = reference(5, true);
@@ -167,7 +195,7 @@ fn bands_equal_whole_frames_with_estimated_motion() {
     sequence(
         &input,
         &(1..=6).map(|f| (f, false)).collect::<Vec<_>>(),
-        false,
+        Vectors::Dropped,
     );
     let whole = d.path().join("whole");
     let banded = d.path().join("banded");
@@ -198,7 +226,11 @@ fn bands_equal_whole_frames_with_estimated_motion() {
 fn the_renderers_motion_alone_needs_files_with_vectors() {
     let d = tempfile::tempdir().unwrap();
     let input = d.path().join("in");
-    sequence(&input, &[(1, false), (2, false), (3, false)], false);
+    sequence(
+        &input,
+        &[(1, false), (2, false), (3, false)],
+        Vectors::Dropped,
+    );
     let i = input.join("frame_####.exr");
     let o = d.path().join("out/frame_####.exr");
     let out = common::radn(&[

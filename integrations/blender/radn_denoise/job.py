@@ -18,6 +18,8 @@ class JobRequest:
     frames: Optional[str] = None
     strength: float = 1.0
     aovs: Sequence[str] = ()
+    #: radn's --motion (None: auto)
+    motion: Optional[str] = None
     oidn_library: Optional[str] = None
     overwrite: bool = False
 
@@ -91,6 +93,7 @@ class DenoiseJob:
                 aovs=r.aovs,
                 progress=self._progress,
                 strength=r.strength,
+                motion=r.motion,
                 overwrite=r.overwrite,
                 oidn_library=r.oidn_library,
                 cancel=self._cancel,

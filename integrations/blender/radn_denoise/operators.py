@@ -7,7 +7,7 @@ from typing import Optional
 
 import bpy
 
-from . import paths
+from . import passes, paths
 from .job import DenoiseJob, JobRequest
 
 #: the run in progress, shown by the panel (one at a time)
@@ -32,6 +32,7 @@ def request_for(scene: bpy.types.Scene, input_pattern: str, frames: Optional[str
         frames=frames,
         strength=s.strength,
         aovs=s.aov_list(),
+        motion=passes.motion_flag(scene),
         oidn_library=paths.blender_oidn_library(),
     )
 
@@ -149,15 +150,13 @@ class RADN_OT_cancel(bpy.types.Operator):
 
 
 class RADN_OT_enable_passes(bpy.types.Operator):
-    """Turn on what radn needs: Denoising Data and Vector passes, OpenEXR MultiLayer output"""
+    """Turn on what radn needs: Denoising Data, Vector (without motion blur), OpenEXR MultiLayer"""
 
     bl_idname = "radn.enable_passes"
     bl_label = "Enable Needed Passes"
     bl_options = {"REGISTER", "UNDO"}
 
     def execute(self, context):
-        from . import passes
-
         changed = passes.enable_needed(context.scene)
         self.report({"INFO"}, "radn: " + (", ".join(changed) if changed else "all set already"))
         return {"FINISHED"}

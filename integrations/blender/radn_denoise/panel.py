@@ -27,7 +27,8 @@ class RADN_PT_temporal_denoise(bpy.types.Panel):
         s = scene.radn
         layout.prop(s, "after_animation")
         if s.after_animation:
-            layout.label(text="Needs Denoising Data and Vector passes; Vector needs motion blur off", icon="INFO")
+            layout.label(text="Needs the Denoising Data pass (and Vector, where motion blur is off)", icon="INFO")
+        layout.label(text=passes.motion_source(scene), icon="INFO")
         layout.prop(s, "output")
         if not s.output:
             layout.label(text="Writes to: " + paths.default_output(paths.render_sequence(scene)), icon="INFO")

@@ -6,7 +6,9 @@ Installs and enables the extension from its zip, renders a five-frame camera mov
 with radn's panel option on (the extension turns on the passes it needs and denoises after the
 animation), renders a high-spp reference of the same frames, runs per-frame OIDN (prefiltered
 auxiliaries, pyoidn) for comparison, then runs the operator on demand, with a bad input, and a
-cancelled job. The test asserts on what this prints."""
+cancelled job; then renders the animation again with motion blur on (no vectors: radn estimates
+motion), with a motion-blurred reference and per-frame OIDN. The test asserts on what this
+prints."""
 
 from __future__ import annotations
 
@@ -198,6 +200,25 @@ def main(zip_path, work):
                      "left": sorted(os.listdir(cancelled)) if os.path.isdir(cancelled) else []}
     out["render_untouched"] = digest(low) == before
     out["oidn_library"] = request.oidn_library
+
+    # motion blur on: Cycles writes no usable vectors, and the extension has radn estimate motion
+    from bl_ext.user_default.radn_denoise import passes as radn_passes
+
+    scene.render.use_motion_blur = True
+    scene.radn.after_animation = True
+    out["blur_motion_source"] = radn_passes.motion_source(scene)
+    out["blur_problems"] = radn_passes.problems(scene)
+    blur = os.path.join(work, "blur")
+    render(scene, blur, LOW_SPP)
+    scene.radn.after_animation = False
+    blur_ref = os.path.join(work, "blur-ref")
+    render(scene, blur_ref, REF_SPP)
+    blur_oidn = os.path.join(work, "blur-oidn")
+    denoise_folder(blur, blur_oidn, log=lambda *_: None)
+    blur_radn = os.path.join(blur, "radn")
+    out["blur_denoised_frames"] = sorted(os.listdir(blur_radn)) if os.path.isdir(blur_radn) else []
+    out["blur"] = {"noisy": scores(blur, blur_ref), "oidn": scores(blur_oidn, blur_ref),
+                   "radn": scores(blur_radn, blur_ref)}
     print(json.dumps(out))
 
 

@@ -70,3 +70,12 @@ def test_on_demand_errors_and_cancel(findings):
     c = findings["cancel"]
     assert c["done"] and c["cancelled"], c
     assert all(n.endswith(".exr") and not n.startswith(".") for n in c["left"]), c
+
+
+def test_with_motion_blur_on_it_estimates_motion_and_beats_per_frame_oidn(findings):
+    assert findings["blur_motion_source"] == "Motion: estimated from the frames (motion blur is on)"
+    assert findings["blur_problems"] == [], "motion blur no longer stands in radn's way"
+    assert findings["blur_denoised_frames"] == [f"{f:04d}.exr" for f in range(1, 6)]
+    b = findings["blur"]
+    assert b["radn"]["psnr"] > b["oidn"]["psnr"], b
+    assert b["radn"]["tmae"] < b["oidn"]["tmae"], b

@@ -24,7 +24,7 @@ use crate::run::banding::{
     frame_bands, hop_reach, window_band_rows, FrameBand, FrameStats, MotionReach, STATS_ROWS,
 };
 use crate::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
-use crate::run::motion::{MotionChoice, MotionSource, SequenceMotion};
+use crate::run::motion::{MotionChoice, MotionSource, SequenceMotion, Vectors};
 use crate::run::row_store::{FrameStore, RowStore};
 use crate::run::sweep::WindowSweep;
 
@@ -386,15 +386,18 @@ impl SequenceJob {
                     // and, where motion is estimated, its signal
                     let mut store: Option<FrameStore> = None;
                     let mut signal: Option<SignalBuilder> = None;
+                    let mut vectors = Vectors::Missing;
+                    // the signal is built until the source is decided (on the whole first
+                    // frame: its first rows may be still sky) and while motion is estimated
+                    let build = r > 0 && motion.source() != Some(MotionSource::Renderer);
                     let s = FrameStats::gather(
                         &self.reader,
                         &self.inputs[k].1,
                         height,
                         STATS_ROWS,
                         |y0, band| {
-                            if r > 0
-                                && motion.decide(band, &self.inputs[k].1)? != MotionSource::Renderer
-                            {
+                            vectors = vectors.and(band);
+                            if build {
                                 signal
                                     .get_or_insert_with(|| {
                                         SignalBuilder::new(width, height, motion.params())
@@ -408,8 +411,11 @@ impl SequenceJob {
                             store.write(y0, band)
                         },
                     )?;
-                    if let Some(b) = signal {
-                        motion.add_signal(k, b.finish(), name);
+                    if r > 0 && motion.decide(vectors, &self.inputs[k].1)? != MotionSource::Renderer
+                    {
+                        if let Some(b) = signal {
+                            motion.add_signal(k, b.finish(), name);
+                        }
                     }
                     report.repaired += s.repaired;
                     e.insert(s);

@@ -35,6 +35,41 @@ impl std::str::FromStr for MotionChoice {
     }
 }
 
+/// What a frame's file holds of the renderer's motion.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Vectors {
+    /// No motion channels.
+    Missing,
+    /// Motion channels holding only zeros: what Cycles writes with motion blur on.
+    Zero,
+    /// Motion.
+    Present,
+}
+
+impl Vectors {
+    /// What `frame` (a whole frame) holds.
+    pub fn of(frame: &Frame) -> Self {
+        Self::Missing.and(frame)
+    }
+
+    /// This, with the rows of `band` of the same frame seen too.
+    pub fn and(self, band: &Frame) -> Self {
+        let planes = [&band.motion_prev, &band.motion_next];
+        if self == Self::Present
+            || planes
+                .iter()
+                .flat_map(|p| p.iter())
+                .any(|p| p.data().iter().any(|v| *v != 0.0))
+        {
+            Self::Present
+        } else if self == Self::Zero || planes.iter().any(|p| p.is_some()) {
+            Self::Zero
+        } else {
+            Self::Missing
+        }
+    }
+}
+
 /// The motion source a sequence ended up with (said once per run).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum MotionSource {
@@ -44,6 +79,8 @@ pub enum MotionSource {
     Estimated,
     /// Estimated because the files have no motion vectors.
     EstimatedWithoutVectors,
+    /// Estimated because the files' vectors are all zero (Cycles with motion blur on).
+    EstimatedOverZeroVectors,
 }
 
 impl MotionSource {
@@ -54,6 +91,10 @@ impl MotionSource {
             Self::Estimated => "motion: estimated from the frames (--motion estimate)",
             Self::EstimatedWithoutVectors => {
                 "motion: estimated from the frames (the files have no motion vectors)"
+            }
+            Self::EstimatedOverZeroVectors => {
+                "motion: estimated from the frames (the files' motion vectors are all zero, as \
+                 Cycles writes them with motion blur on)"
             }
         }
     }
@@ -87,18 +128,24 @@ impl SequenceMotion {
         }
     }
 
-    /// The source, decided on the first frame decoded (`frame`, read from `path`) and said
-    /// once in the log.
-    pub fn decide(&mut self, frame: &Frame, path: &Path) -> Result<MotionSource> {
+    /// The source once decided.
+    pub fn source(&self) -> Option<MotionSource> {
+        self.source
+    }
+
+    /// The source, decided on the first frame decoded (holding `vectors`, read from `path`)
+    /// and said once in the log.
+    pub fn decide(&mut self, vectors: Vectors, path: &Path) -> Result<MotionSource> {
         if let Some(s) = self.source {
             return Ok(s);
         }
-        let has_vectors = frame.motion_prev.is_some() || frame.motion_next.is_some();
-        let source = match (self.choice, has_vectors) {
+        let source = match (self.choice, vectors) {
             (MotionChoice::Estimate, _) => MotionSource::Estimated,
-            (_, true) => MotionSource::Renderer,
-            (MotionChoice::Auto, false) => MotionSource::EstimatedWithoutVectors,
-            (MotionChoice::Renderer, false) => {
+            (MotionChoice::Renderer, Vectors::Present | Vectors::Zero)
+            | (MotionChoice::Auto, Vectors::Present) => MotionSource::Renderer,
+            (MotionChoice::Auto, Vectors::Zero) => MotionSource::EstimatedOverZeroVectors,
+            (MotionChoice::Auto, Vectors::Missing) => MotionSource::EstimatedWithoutVectors,
+            (MotionChoice::Renderer, Vectors::Missing) => {
                 return Err(Error::Unsupported {
                     path: path.to_path_buf(),
                     detail: "it has no motion vectors, and --motion renderer uses only the \
@@ -114,10 +161,7 @@ impl SequenceMotion {
 
     /// Whether motion is estimated (once decided).
     pub fn estimating(&self) -> bool {
-        matches!(
-            self.source,
-            Some(MotionSource::Estimated | MotionSource::EstimatedWithoutVectors)
-        )
+        self.source.is_some_and(|s| s != MotionSource::Renderer)
     }
 
     /// The settings of estimation.
@@ -249,11 +293,14 @@ mod tests {
     #[test]
     fn the_source_is_decided_once_from_the_first_frame() {
         let plain = Frame::synthetic(Plane::zeros(4, 4, 3));
-        let mut with = plain.clone();
-        with.motion_prev = Some(Plane::zeros(4, 4, 2));
+        let mut zero = plain.clone();
+        zero.motion_prev = Some(Plane::zeros(4, 4, 2));
+        let mut with = zero.clone();
+        with.motion_next = Some(Plane::filled(4, 4, 2, 0.5));
         let p = Path::new("f1.exr");
-        let source =
-            |choice, f: &Frame| SequenceMotion::new(choice, EstimateParams::default()).decide(f, p);
+        let source = |choice, f: &Frame| {
+            SequenceMotion::new(choice, EstimateParams::default()).decide(Vectors::of(f), p)
+        };
         assert_eq!(
             source(MotionChoice::Auto, &with).unwrap(),
             MotionSource::Renderer
@@ -263,9 +310,21 @@ mod tests {
             MotionSource::EstimatedWithoutVectors
         );
         assert_eq!(
+            source(MotionChoice::Auto, &zero).unwrap(),
+            MotionSource::EstimatedOverZeroVectors
+        );
+        assert_eq!(
+            source(MotionChoice::Renderer, &zero).unwrap(),
+            MotionSource::Renderer
+        );
+        assert_eq!(
             source(MotionChoice::Estimate, &with).unwrap(),
             MotionSource::Estimated
         );
+        // a frame's bands seen one after the other: one moving row is motion
+        let (top, bottom) = (zero.rows(0..2), with.rows(2..4));
+        assert_eq!(Vectors::of(&top), Vectors::Zero);
+        assert_eq!(Vectors::of(&top).and(&bottom), Vectors::Present);
         let e = source(MotionChoice::Renderer, &plain)
             .unwrap_err()
             .to_string();

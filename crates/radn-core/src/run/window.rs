@@ -11,7 +11,7 @@ use crate::error::Result;
 use crate::guide::JobGuides;
 use crate::io::exr_file::ExrFile;
 use crate::io::frame::{Frame, FrameReader};
-use crate::run::motion::{MotionSource, SequenceMotion};
+use crate::run::motion::{MotionSource, SequenceMotion, Vectors};
 
 /// A file's name for the log.
 fn file_name(path: &std::path::Path) -> String {
@@ -138,10 +138,12 @@ impl<'a> WindowReader<'a> {
                 self.repaired += frame.repaired;
                 let mut estimated = false;
                 if let Some(m) = &mut self.motion {
-                    if m.decide(&frame, &self.files[k])? != MotionSource::Renderer {
+                    if m.decide(Vectors::of(&frame), &self.files[k])? != MotionSource::Renderer {
                         frame.motion_prev = None;
                         frame.motion_next = None;
-                        let signal = MotionSignal::of_frame(&frame, m.params());
+                        let signal = super::timing::timed("motion estimation", || {
+                            MotionSignal::of_frame(&frame, m.params())
+                        });
                         let files = self.files;
                         m.add_signal(k, signal, |i| file_name(&files[i]));
                         estimated = true;

@@ -162,6 +162,7 @@ def denoise(
     progress: Optional[Progress] = None,
     *,
     strength: Optional[float] = None,
+    motion: Optional[str] = None,
     overwrite: bool = False,
     device: Optional[str] = None,
     model: Optional[PathLike] = None,
@@ -178,7 +179,9 @@ def denoise(
     (Intel Open Image Denoise when found: the guided path), "none", "oidn", "denoised" or a
     layer name. aovs: extra layers denoised with the beauty's weights. progress: called with
     (frames done, frames in all) as the run goes, done counting every stage and fractions of a
-    frame. strength: 1 as tuned, lower keeps more of the input. overwrite: recompute outputs
+    frame. strength: 1 as tuned, lower keeps more of the input. motion: "auto" (the renderer's
+    vectors where the files have them, else motion estimated from the frames), "renderer" or
+    "estimate" (for renders with motion blur, which have no vectors). overwrite: recompute outputs
     that exist (default: skip them, to resume). device: "cpu" or "cuda[:N]". oidn_library: the
     OIDN library to guide with (for example Blender's). cancel: set it to stop the run
     (raises :class:`Cancelled`). extra_args: further `radn denoise` options.
@@ -194,6 +197,8 @@ def denoise(
         args += ["--aovs", ",".join(aov_list)]
     if strength is not None:
         args += ["--strength", repr(float(strength))]
+    if motion is not None:
+        args += ["--motion", motion]
     if overwrite:
         args.append("--overwrite")
     if device is not None:

@@ -22,6 +22,11 @@ pub struct DisParams {
     /// patch without texture at the displacement it started from (the coarser level's), rather
     /// than letting noise move it.
     pub damping: f32,
+    /// Texture (the smaller eigenvalue of a patch's normal matrix, per pixel and channel) at
+    /// which a patch's own fit and the motion filled in from the patches around it weigh the
+    /// same. A patch on a plain floor cannot see motion along it; the motion of the textured
+    /// patches around it, spread over the grid, stands in for it.
+    pub texture: f32,
 }
 
 impl Default for DisParams {
@@ -30,8 +35,9 @@ impl Default for DisParams {
             patch: 8,
             stride: 4,
             iterations: 12,
-            coarsest_side: 24,
+            coarsest_side: 12,
             damping: 1e-4,
+            texture: 4e-4,
         }
     }
 }
@@ -112,39 +118,6 @@ pub(crate) fn sample(p: &Plane, c: usize, x: f32, y: f32) -> f32 {
     top + (bottom - top) * fy
 }
 
-/// Catmull-Rom lookup of channel `c` with the edges repeated: sharper than bilinear between
-/// pixels, so a patch's fit is not pulled towards whole pixels.
-#[inline]
-pub(crate) fn sample_cubic(p: &Plane, c: usize, x: f32, y: f32) -> f32 {
-    let (w, h) = (p.width() as isize, p.height() as isize);
-    let xf = x.clamp(0.0, (w - 1) as f32);
-    let yf = y.clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (xf.floor() as isize, yf.floor() as isize);
-    let (tx, ty) = (xf - x0 as f32, yf - y0 as f32);
-    let weights = |t: f32| {
-        let (t2, t3) = (t * t, t * t * t);
-        [
-            0.5 * (-t3 + 2.0 * t2 - t),
-            0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
-            0.5 * (-3.0 * t3 + 4.0 * t2 + t),
-            0.5 * (t3 - t2),
-        ]
-    };
-    let (wx, wy) = (weights(tx), weights(ty));
-    let ch = p.channel(c);
-    let mut acc = 0f32;
-    for (j, wyj) in wy.iter().enumerate() {
-        let yy = (y0 + j as isize - 1).clamp(0, h - 1) as usize;
-        let row = &ch[yy * w as usize..];
-        let mut r = 0f32;
-        for (i, wxi) in wx.iter().enumerate() {
-            r += wxi * row[(x0 + i as isize - 1).clamp(0, w - 1) as usize];
-        }
-        acc += wyj * r;
-    }
-    acc
-}
-
 /// Where the patches of one axis start: every `stride` pixels, and one flush with the far edge.
 fn starts(len: usize, patch: usize, stride: usize) -> Vec<usize> {
     if len <= patch {
@@ -164,7 +137,7 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
     let xs = starts(w, ps, p.stride);
     let ys = starts(h, ps, p.stride);
     let (gx, gy) = gradients(a);
-    let patches: Vec<(f32, f32)> = ys
+    let fits: Vec<(f32, f32, f32)> = ys
         .par_iter()
         .flat_map_iter(|&y0| {
             xs.iter()
@@ -172,6 +145,7 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
                 .collect::<Vec<_>>()
         })
         .collect();
+    let patches = fill_weak_patches(&fits, xs.len(), ys.len(), p.texture);
     // per pixel, the patches that cover it, weighted by how well each one explains it
     let covering = |starts: &[usize], v: usize| -> std::ops::Range<usize> {
         let lo = starts.partition_point(|&s| s + ps <= v);
@@ -209,6 +183,73 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
     out
 }
 
+/// Each patch's displacement blended, by how much texture it has, with the displacement the
+/// patches around it give (push–pull over the patch grid: averages weighted by texture pooled
+/// 2×2 up to one cell, then brought back down, so a large plain area gets the motion of the
+/// texture at its borders).
+fn fill_weak_patches(
+    fits: &[(f32, f32, f32)],
+    nx: usize,
+    ny: usize,
+    texture: f32,
+) -> Vec<(f32, f32)> {
+    // (u·c, v·c, c) per cell, c the confidence of the patch's own fit
+    let own: Vec<[f32; 3]> = fits
+        .iter()
+        .map(|&(u, v, s)| {
+            let c = s / (s + texture);
+            [u * c, v * c, c]
+        })
+        .collect();
+    let mut levels = vec![(own, nx, ny)];
+    while let Some((last, w, h)) = levels.last().filter(|(_, w, h)| *w > 1 || *h > 1) {
+        let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
+        let mut next = vec![[0f32; 3]; w2 * h2];
+        for y in 0..*h {
+            for x in 0..*w {
+                let (d, c) = (&mut next[(y / 2) * w2 + x / 2], last[y * w + x]);
+                d.iter_mut().zip(c).for_each(|(d, c)| *d += c);
+            }
+        }
+        levels.push((next, w2, h2));
+    }
+    // down again: a cell keeps its own average where its weight is one or more, and takes the
+    // coarser cell's for the rest
+    let mut coarse: Vec<(f32, f32)> = {
+        let (top, _, _) = levels.last().expect("one level");
+        top.iter()
+            .map(|[su, sv, c]| {
+                if *c > 0.0 {
+                    (su / c, sv / c)
+                } else {
+                    (0.0, 0.0)
+                }
+            })
+            .collect()
+    };
+    for k in (0..levels.len() - 1).rev() {
+        let (cells, w, h) = &levels[k];
+        let w2 = levels[k + 1].1;
+        coarse = (0..w * h)
+            .map(|i| {
+                let [su, sv, c] = cells[i];
+                let (cu, cv) = coarse[(i / w / 2) * w2 + (i % w) / 2];
+                let keep = c.min(1.0);
+                if c > 0.0 {
+                    (
+                        keep * su / c + (1.0 - keep) * cu,
+                        keep * sv / c + (1.0 - keep) * cv,
+                    )
+                } else {
+                    (cu, cv)
+                }
+            })
+            .collect();
+        let _ = h;
+    }
+    coarse
+}
+
 /// Central differences of every channel (one-sided at the edges).
 fn gradients(p: &Plane) -> (Plane, Plane) {
     let (w, h) = (p.width(), p.height());
@@ -231,6 +272,99 @@ fn gradients(p: &Plane) -> (Plane, Plane) {
     )
 }
 
+/// Catmull-Rom weights of the four taps around a sample at fraction `t` past the second.
+#[inline]
+fn cubic_weights(t: f32) -> [f32; 4] {
+    let (t2, t3) = (t * t, t * t * t);
+    [
+        0.5 * (-t3 + 2.0 * t2 - t),
+        0.5 * (3.0 * t3 - 5.0 * t2 + 2.0),
+        0.5 * (-3.0 * t3 + 4.0 * t2 + t),
+        0.5 * (t3 - t2),
+    ]
+}
+
+/// One patch of `b` moved by a whole displacement: every pixel of a patch shifts by the same
+/// amount, so the Catmull-Rom weights are shared and the lookup is separable.
+struct PatchWarp<'a> {
+    b: &'a Plane,
+    ps: usize,
+    /// Per channel, `ps × (ps + 3)` horizontally interpolated rows.
+    rows: Vec<f32>,
+}
+
+impl<'a> PatchWarp<'a> {
+    fn new(b: &'a Plane, ps: usize) -> Self {
+        Self {
+            b,
+            ps,
+            rows: vec![0.0; ps * (ps + 3)],
+        }
+    }
+
+    /// The patch at `(x0, y0)` sampled at `+ (u, v)`, channel after channel, into `out`
+    /// (`channels × ps × ps`); edges repeated.
+    fn warp(&mut self, (x0, y0): (usize, usize), u: f32, v: f32, out: &mut [f32]) {
+        let (w, h, ps) = (self.b.width() as isize, self.b.height() as isize, self.ps);
+        let (sx, sy) = (x0 as f32 + u, y0 as f32 + v);
+        let (ix, iy) = (sx.floor(), sy.floor());
+        let (wx, wy) = (cubic_weights(sx - ix), cubic_weights(sy - iy));
+        let (ix, iy) = (ix as isize, iy as isize);
+        let cols: Vec<usize> = (0..ps + 3)
+            .map(|j| (ix + j as isize - 1).clamp(0, w - 1) as usize)
+            .collect();
+        let interior = ix >= 1 && ix + ps as isize + 2 <= w;
+        for c in 0..self.b.channels() {
+            let ch = self.b.channel(c);
+            for r in 0..ps + 3 {
+                let row = (iy + r as isize - 1).clamp(0, h - 1) as usize * w as usize;
+                let dst = &mut self.rows[r * ps..(r + 1) * ps];
+                if interior {
+                    let src = &ch[row + cols[0]..row + cols[0] + ps + 3];
+                    for (x, d) in dst.iter_mut().enumerate() {
+                        *d = wx[0] * src[x]
+                            + wx[1] * src[x + 1]
+                            + wx[2] * src[x + 2]
+                            + wx[3] * src[x + 3];
+                    }
+                } else {
+                    for (x, d) in dst.iter_mut().enumerate() {
+                        *d = wx[0] * ch[row + cols[x]]
+                            + wx[1] * ch[row + cols[x + 1]]
+                            + wx[2] * ch[row + cols[x + 2]]
+                            + wx[3] * ch[row + cols[x + 3]];
+                    }
+                }
+            }
+            let o = &mut out[c * ps * ps..(c + 1) * ps * ps];
+            for y in 0..ps {
+                let (r0, r1, r2, r3) = (
+                    &self.rows[y * ps..],
+                    &self.rows[(y + 1) * ps..],
+                    &self.rows[(y + 2) * ps..],
+                    &self.rows[(y + 3) * ps..],
+                );
+                for x in 0..ps {
+                    o[y * ps + x] = wy[0] * r0[x] + wy[1] * r1[x] + wy[2] * r2[x] + wy[3] * r3[x];
+                }
+            }
+        }
+    }
+}
+
+/// A patch's pixels (channel after channel) from a plane.
+fn gather(p: &Plane, (x0, y0): (usize, usize), ps: usize) -> Vec<f32> {
+    let w = p.width();
+    let mut out = Vec::with_capacity(p.channels() * ps * ps);
+    for c in 0..p.channels() {
+        let ch = p.channel(c);
+        for y in y0..y0 + ps {
+            out.extend_from_slice(&ch[y * w + x0..y * w + x0 + ps]);
+        }
+    }
+    out
+}
+
 /// The displacement of the patch at `(x0, y0)` by inverse-compositional Gauss–Newton, from
 /// the mean of `init` over the patch; kept at that start when the fit does not lower the
 /// patch's error. Pixels whose match falls off `b` are left out (clamped edges would pull the
@@ -242,11 +376,12 @@ fn fit_patch(
     gx: &Plane,
     gy: &Plane,
     init: &Plane,
-    (x0, y0): (usize, usize),
+    at: (usize, usize),
     ps: usize,
     p: &DisParams,
-) -> (f32, f32) {
+) -> (f32, f32, f32) {
     let nc = a.channels();
+    let (x0, y0) = at;
     let (bw, bh) = ((b.width() - 1) as f32, (b.height() - 1) as f32);
     let (mut u0, mut v0) = (0f32, 0f32);
     for y in y0..y0 + ps {
@@ -258,44 +393,66 @@ fn fit_patch(
     let n = (ps * ps) as f32;
     (u0, v0) = (u0 / n, v0 / n);
     let damp = p.damping * n * nc as f32;
-    let on_b = |x: f32, y: f32| x >= 0.0 && y >= 0.0 && x <= bw && y <= bh;
+    let (t, ex, ey) = (gather(a, at, ps), gather(gx, at, ps), gather(gy, at, ps));
+    // the texture: the smaller eigenvalue of the normal matrix, per pixel and channel
+    let (mut sxx, mut sxy, mut syy) = (0f32, 0f32, 0f32);
+    for (gx, gy) in ex.iter().zip(&ey) {
+        sxx += gx * gx;
+        sxy += gx * gy;
+        syy += gy * gy;
+    }
+    let half_trace = 0.5 * (sxx + syy);
+    let texture =
+        (half_trace - (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt()).max(0.0) / (n * nc as f32);
+    let mut warp = PatchWarp::new(b, ps);
+    let mut warped = vec![0f32; nc * ps * ps];
+    // which of the patch's columns and rows land on `b` at a displacement
+    let on_b = |u: f32, v: f32| -> (Vec<bool>, Vec<bool>) {
+        (
+            (0..ps)
+                .map(|x| (0.0..=bw).contains(&(x0 as f32 + x as f32 + u)))
+                .collect(),
+            (0..ps)
+                .map(|y| (0.0..=bh).contains(&(y0 as f32 + y as f32 + v)))
+                .collect(),
+        )
+    };
     // mean squared error over the pixels that land on `b` (and how many do)
-    let error = |u: f32, v: f32| -> (f32, usize) {
+    let error = |warp: &mut PatchWarp, warped: &mut [f32], u: f32, v: f32| -> (f32, usize) {
+        warp.warp(at, u, v, warped);
+        let (cols, rows) = on_b(u, v);
         let (mut e, mut k) = (0f32, 0usize);
-        for y in y0..y0 + ps {
-            for x in x0..x0 + ps {
-                let (sx, sy) = (x as f32 + u, y as f32 + v);
-                if !on_b(sx, sy) {
-                    continue;
-                }
+        for y in (0..ps).filter(|&y| rows[y]) {
+            for x in (0..ps).filter(|&x| cols[x]) {
                 k += 1;
                 for c in 0..nc {
-                    let d = sample_cubic(b, c, sx, sy) - a.get(x, y, c);
+                    let i = c * ps * ps + y * ps + x;
+                    let d = warped[i] - t[i];
                     e += d * d;
                 }
             }
         }
         (e / k.max(1) as f32, k)
     };
-    let (start_error, start_on) = error(u0, v0);
+    let (start_error, start_on) = error(&mut warp, &mut warped, u0, v0);
     let (mut u, mut v) = (u0, v0);
     for _ in 0..p.iterations {
+        warp.warp(at, u, v, &mut warped);
+        let (cols, rows) = on_b(u, v);
         let (mut bx, mut by) = (0f32, 0f32);
         let (mut hxx, mut hxy, mut hyy) = (damp, 0f32, damp);
-        for y in y0..y0 + ps {
-            for x in x0..x0 + ps {
-                let (sx, sy) = (x as f32 + u, y as f32 + v);
-                if !on_b(sx, sy) {
-                    continue;
-                }
-                for c in 0..nc {
-                    let (ex, ey) = (gx.get(x, y, c), gy.get(x, y, c));
-                    let d = sample_cubic(b, c, sx, sy) - a.get(x, y, c);
-                    bx += ex * d;
-                    by += ey * d;
-                    hxx += ex * ex;
-                    hxy += ex * ey;
-                    hyy += ey * ey;
+        for c in 0..nc {
+            for y in (0..ps).filter(|&y| rows[y]) {
+                let base = c * ps * ps + y * ps;
+                for x in (0..ps).filter(|&x| cols[x]) {
+                    let i = base + x;
+                    let (gx, gy) = (ex[i], ey[i]);
+                    let d = warped[i] - t[i];
+                    bx += gx * d;
+                    by += gy * d;
+                    hxx += gx * gx;
+                    hxy += gx * gy;
+                    hyy += gy * gy;
                 }
             }
         }
@@ -308,12 +465,12 @@ fn fit_patch(
             break;
         }
     }
-    let (end_error, end_on) = error(u, v);
+    let (end_error, end_on) = error(&mut warp, &mut warped, u, v);
     // a fit that leaves most of the patch off `b` is no fit
     if !(u.is_finite() && v.is_finite()) || end_error > start_error || 2 * end_on < start_on {
-        (u0, v0)
+        (u0, v0, texture)
     } else {
-        (u, v)
+        (u, v, texture)
     }
 }
 

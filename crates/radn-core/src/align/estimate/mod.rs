@@ -89,6 +89,9 @@ impl Sources {
     }
 }
 
+/// How a buffer's sample enters the signal (log depth, or as it is).
+type SampleMap = fn(f32) -> f32;
+
 /// Builds a [`MotionSignal`] from a frame's bands of rows, in order: each band's pixels are
 /// summed into the downsampled cells they fall in.
 #[derive(Debug)]
@@ -125,46 +128,53 @@ impl SignalBuilder {
         if self.sums.channels() == 0 {
             self.sums = Plane::zeros(sw, sh, sources.channels());
         }
-        let w = band.width();
-        let f = self.factor;
-        let lum = |x: usize, y: usize| -> f32 {
-            let c = &band.color;
-            let v = 0.2126 * c.get(x, y, 0) + 0.7152 * c.get(x, y, 1) + 0.0722 * c.get(x, y, 2);
-            if v.is_finite() {
-                v.max(0.0)
-            } else {
-                0.0
+        let (w, f) = (band.width(), self.factor);
+        // one row of each of the signal's channels, before its cells are summed
+        let mut planes: Vec<(&Plane, usize, SampleMap)> = Vec::new();
+        for (on, plane) in [
+            (sources.albedo, band.albedo.as_ref()),
+            (sources.normal, band.normal.as_ref()),
+        ] {
+            if let (true, Some(p)) = (on, plane) {
+                planes.extend((0..3).map(|c| (p, c, (|v| v) as SampleMap)));
             }
-        };
+        }
+        if let (true, Some(d)) = (sources.depth, band.depth.as_ref()) {
+            planes.push((d, 0, |d| {
+                if d.is_finite() && d > 0.0 {
+                    d.min(DEPTH_CAP).ln()
+                } else {
+                    DEPTH_CAP.ln()
+                }
+            }));
+        }
+        let mut lum = vec![0f32; w];
         for y in 0..band.height() {
-            let sy = (y0 + y) / f;
-            for x in 0..w {
-                let cell = sy * sw + x / f;
-                self.counts[cell] += 1.0;
-                let mut k = 0;
-                let mut add = |v: f32| {
-                    self.sums.channel_mut(k)[cell] += v;
-                    k += 1;
-                };
-                add(lum(x, y));
-                for (on, plane) in [
-                    (sources.albedo, band.albedo.as_ref()),
-                    (sources.normal, band.normal.as_ref()),
-                ] {
-                    if let (true, Some(p)) = (on, plane) {
-                        for c in 0..3 {
-                            add(p.get(x, y, c));
-                        }
-                    }
+            let cells = (y0 + y) / f * sw..((y0 + y) / f + 1) * sw;
+            // the last cell of a row may hold fewer than `f` columns
+            for (i, n) in self.counts[cells.clone()].iter_mut().enumerate() {
+                *n += (w - i * f).min(f) as f32;
+            }
+            let c = &band.color;
+            let row = y * w..(y + 1) * w;
+            let (r, g, b) = (
+                &c.channel(0)[row.clone()],
+                &c.channel(1)[row.clone()],
+                &c.channel(2)[row.clone()],
+            );
+            for (x, l) in lum.iter_mut().enumerate() {
+                let v = 0.2126 * r[x] + 0.7152 * g[x] + 0.0722 * b[x];
+                *l = if v.is_finite() { v.max(0.0) } else { 0.0 };
+            }
+            let sum_into = |dst: &mut [f32], src: &[f32], map: SampleMap| {
+                for (x, v) in src.iter().enumerate() {
+                    dst[x / f] += map(*v);
                 }
-                if let (true, Some(d)) = (sources.depth, band.depth.as_ref()) {
-                    let d = d.get(x, y, 0);
-                    add(if d.is_finite() && d > 0.0 {
-                        d.min(DEPTH_CAP).ln()
-                    } else {
-                        DEPTH_CAP.ln()
-                    });
-                }
+            };
+            sum_into(&mut self.sums.channel_mut(0)[cells.clone()], &lum, |v| v);
+            for (k, (p, c, map)) in planes.iter().enumerate() {
+                let src = &p.channel(*c)[row.clone()];
+                sum_into(&mut self.sums.channel_mut(k + 1)[cells.clone()], src, *map);
             }
         }
     }
