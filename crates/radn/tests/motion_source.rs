@@ -73,9 +73,14 @@ fn write_frame(f: &ExrFile, path: &Path, mirror: bool, vectors: Vectors) {
 
 /// `radn denoise` of every frame of `input` into `out`, with `extra` arguments; its stderr.
 fn denoise(input: &Path, out: &Path, extra: &[&str]) -> String {
+    denoise_with_progress("off", input, out, extra)
+}
+
+/// [`denoise`] with `--progress STYLE`.
+fn denoise_with_progress(style: &str, input: &Path, out: &Path, extra: &[&str]) -> String {
     let i = input.join("frame_####.exr");
     let o = out.join("frame_####.exr");
-    let mut args = vec!["--progress", "off", "denoise", "-i"];
+    let mut args = vec!["--progress", style, "denoise", "-i"];
     args.push(i.to_str().unwrap());
     args.extend(["-o", o.to_str().unwrap()]);
     args.extend(extra);
@@ -164,7 +169,7 @@ fn a_cut_is_found_and_the_frames_beside_it_equal_sequences_that_end_there() {
         sequence(&dir("a"), &a, vectors);
         sequence(&dir("b"), &b, vectors);
         sequence(&dir("ab"), &joined, vectors);
-        let log = denoise(&dir("ab"), &dir("ab-out"), &[]);
+        let log = denoise_with_progress("json", &dir("ab"), &dir("ab-out"), &[]);
         denoise(&dir("a"), &dir("a-out"), &[]);
         denoise(&dir("b"), &dir("b-out"), &[]);
         let (joined_a, alone_a) = (beauty(&dir("ab-out"), 5), beauty(&dir("a-out"), 5));
@@ -180,6 +185,16 @@ fn a_cut_is_found_and_the_frames_beside_it_equal_sequences_that_end_there() {
         } else {
             assert!(
                 log.contains("cut between frame_0005.exr and frame_0006.exr"),
+                "{log}"
+            );
+            let events: Vec<serde_json::Value> = log
+                .lines()
+                .filter_map(|l| serde_json::from_str(l).ok())
+                .collect();
+            assert!(
+                events
+                    .iter()
+                    .any(|e| e["event"] == "cut" && e["between"] == serde_json::json!([5, 6])),
                 "{log}"
             );
             assert_eq!(joined_a, alone_a, "the last frame before the cut");

@@ -94,6 +94,7 @@ pub(crate) fn run_fused(
         progress((done + 1) as f64, total);
     }
     report.repaired = sweep.repaired();
+    report.cuts = job.cut_frames(sweep.cuts());
     Ok(report)
 }
 

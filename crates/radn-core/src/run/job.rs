@@ -112,9 +112,17 @@ pub struct JobReport {
     pub skipped: usize,
     /// NaN/Inf samples repaired in the inputs.
     pub repaired: usize,
+    /// Cuts found where motion was estimated: the frame numbers on either side of each.
+    pub cuts: Vec<(i64, i64)>,
 }
 
 impl SequenceJob {
+    /// The frame numbers on either side of each cut, from the positions before them.
+    pub(crate) fn cut_frames(&self, cuts: impl Iterator<Item = usize>) -> Vec<(i64, i64)> {
+        cuts.map(|k| (self.inputs[k].0, self.inputs[k + 1].0))
+            .collect()
+    }
+
     /// The number of frames the job writes (the others are neighbours only).
     pub fn output_count(&self) -> usize {
         self.outputs.iter().flatten().count()
@@ -268,6 +276,7 @@ impl SequenceJob {
             progress((done + 1) as f64, total);
         }
         report.repaired = sweep.repaired();
+        report.cuts = self.cut_frames(sweep.cuts());
         Ok(report)
     }
 }
@@ -606,6 +615,7 @@ impl SequenceJob {
             motion.forget_before((pos + 1).saturating_sub(r));
             progress((done + 1) as f64, frames);
         }
+        report.cuts = self.cut_frames(motion.cuts());
         Ok(report)
     }
 }

@@ -216,7 +216,7 @@ impl DenoiseRun {
         let mut reading = 0..all.len();
         let mut files: Vec<PathBuf> = inputs.into_iter().map(|(_, p)| p).collect();
         let mut report = JobReport::default();
-        let mut repaired = 0;
+        let (mut repaired, mut cuts) = (0, Vec::new());
         for pass in 1..=passes {
             let is_last = pass == passes;
             let outs: Vec<Option<PathBuf>> = reading
@@ -259,11 +259,17 @@ impl DenoiseRun {
                 })
             })?;
             // NaN/Inf are repaired in the original inputs, which only the first pass reads
+            // and cuts are found in them too
             if pass == 1 {
                 repaired = r.repaired;
+                cuts.clone_from(&r.cuts);
             }
             if is_last {
-                report = JobReport { repaired, ..r };
+                report = JobReport {
+                    repaired,
+                    cuts: cuts.clone(),
+                    ..r
+                };
             } else {
                 reading = span(pass);
                 files = outs.into_iter().flatten().collect();

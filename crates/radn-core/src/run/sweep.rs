@@ -154,4 +154,9 @@ impl<'a> WindowSweep<'a> {
     pub fn repaired(&self) -> usize {
         self.windows.repaired()
     }
+
+    /// The cuts found so far (positions of the frames before them).
+    pub fn cuts(&self) -> impl Iterator<Item = usize> + '_ {
+        self.windows.motion().into_iter().flat_map(|m| m.cuts())
+    }
 }

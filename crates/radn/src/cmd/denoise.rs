@@ -341,11 +341,18 @@ pub fn run(a: Args) -> Result<()> {
             )
         );
     }
+    for (before, after) in &report.cuts {
+        crate::progress::event(serde_json::json!({
+            "event": "cut",
+            "between": [before, after],
+        }));
+    }
     crate::progress::event(serde_json::json!({
         "event": "finished",
         "written": report.written,
         "skipped": report.skipped,
         "repaired": report.repaired,
+        "cuts": report.cuts,
         "seconds": t.elapsed().as_secs_f64(),
     }));
     Ok(())
