@@ -22,11 +22,6 @@ pub struct DisParams {
     /// patch without texture at the displacement it started from (the coarser level's), rather
     /// than letting noise move it.
     pub damping: f32,
-    /// Texture (the smaller eigenvalue of a patch's normal matrix, per pixel and channel) at
-    /// which a patch's own fit and the motion filled in from the patches around it weigh the
-    /// same. A patch on a plain floor cannot see motion along it; the motion of the textured
-    /// patches around it, spread over the grid, stands in for it.
-    pub texture: f32,
 }
 
 impl Default for DisParams {
@@ -37,7 +32,6 @@ impl Default for DisParams {
             iterations: 12,
             coarsest_side: 12,
             damping: 1e-4,
-            texture: 4e-4,
         }
     }
 }
@@ -137,7 +131,7 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
     let xs = starts(w, ps, p.stride);
     let ys = starts(h, ps, p.stride);
     let (gx, gy) = gradients(a);
-    let fits: Vec<(f32, f32, f32)> = ys
+    let patches: Vec<(f32, f32)> = ys
         .par_iter()
         .flat_map_iter(|&y0| {
             xs.iter()
@@ -145,7 +139,6 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
                 .collect::<Vec<_>>()
         })
         .collect();
-    let patches = fill_weak_patches(&fits, xs.len(), ys.len(), p.texture);
     // per pixel, the patches that cover it, weighted by how well each one explains it
     let covering = |starts: &[usize], v: usize| -> std::ops::Range<usize> {
         let lo = starts.partition_point(|&s| s + ps <= v);
@@ -181,73 +174,6 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
             }
         });
     out
-}
-
-/// Each patch's displacement blended, by how much texture it has, with the displacement the
-/// patches around it give (push–pull over the patch grid: averages weighted by texture pooled
-/// 2×2 up to one cell, then brought back down, so a large plain area gets the motion of the
-/// texture at its borders).
-fn fill_weak_patches(
-    fits: &[(f32, f32, f32)],
-    nx: usize,
-    ny: usize,
-    texture: f32,
-) -> Vec<(f32, f32)> {
-    // (u·c, v·c, c) per cell, c the confidence of the patch's own fit
-    let own: Vec<[f32; 3]> = fits
-        .iter()
-        .map(|&(u, v, s)| {
-            let c = s / (s + texture);
-            [u * c, v * c, c]
-        })
-        .collect();
-    let mut levels = vec![(own, nx, ny)];
-    while let Some((last, w, h)) = levels.last().filter(|(_, w, h)| *w > 1 || *h > 1) {
-        let (w2, h2) = (w.div_ceil(2), h.div_ceil(2));
-        let mut next = vec![[0f32; 3]; w2 * h2];
-        for y in 0..*h {
-            for x in 0..*w {
-                let (d, c) = (&mut next[(y / 2) * w2 + x / 2], last[y * w + x]);
-                d.iter_mut().zip(c).for_each(|(d, c)| *d += c);
-            }
-        }
-        levels.push((next, w2, h2));
-    }
-    // down again: a cell keeps its own average where its weight is one or more, and takes the
-    // coarser cell's for the rest
-    let mut coarse: Vec<(f32, f32)> = {
-        let (top, _, _) = levels.last().expect("one level");
-        top.iter()
-            .map(|[su, sv, c]| {
-                if *c > 0.0 {
-                    (su / c, sv / c)
-                } else {
-                    (0.0, 0.0)
-                }
-            })
-            .collect()
-    };
-    for k in (0..levels.len() - 1).rev() {
-        let (cells, w, h) = &levels[k];
-        let w2 = levels[k + 1].1;
-        coarse = (0..w * h)
-            .map(|i| {
-                let [su, sv, c] = cells[i];
-                let (cu, cv) = coarse[(i / w / 2) * w2 + (i % w) / 2];
-                let keep = c.min(1.0);
-                if c > 0.0 {
-                    (
-                        keep * su / c + (1.0 - keep) * cu,
-                        keep * sv / c + (1.0 - keep) * cv,
-                    )
-                } else {
-                    (cu, cv)
-                }
-            })
-            .collect();
-        let _ = h;
-    }
-    coarse
 }
 
 /// Central differences of every channel (one-sided at the edges).
@@ -379,7 +305,7 @@ fn fit_patch(
     at: (usize, usize),
     ps: usize,
     p: &DisParams,
-) -> (f32, f32, f32) {
+) -> (f32, f32) {
     let nc = a.channels();
     let (x0, y0) = at;
     let (bw, bh) = ((b.width() - 1) as f32, (b.height() - 1) as f32);
@@ -394,16 +320,6 @@ fn fit_patch(
     (u0, v0) = (u0 / n, v0 / n);
     let damp = p.damping * n * nc as f32;
     let (t, ex, ey) = (gather(a, at, ps), gather(gx, at, ps), gather(gy, at, ps));
-    // the texture: the smaller eigenvalue of the normal matrix, per pixel and channel
-    let (mut sxx, mut sxy, mut syy) = (0f32, 0f32, 0f32);
-    for (gx, gy) in ex.iter().zip(&ey) {
-        sxx += gx * gx;
-        sxy += gx * gy;
-        syy += gy * gy;
-    }
-    let half_trace = 0.5 * (sxx + syy);
-    let texture =
-        (half_trace - (0.25 * (sxx - syy).powi(2) + sxy * sxy).sqrt()).max(0.0) / (n * nc as f32);
     let mut warp = PatchWarp::new(b, ps);
     let mut warped = vec![0f32; nc * ps * ps];
     // which of the patch's columns and rows land on `b` at a displacement
@@ -468,9 +384,9 @@ fn fit_patch(
     let (end_error, end_on) = error(&mut warp, &mut warped, u, v);
     // a fit that leaves most of the patch off `b` is no fit
     if !(u.is_finite() && v.is_finite()) || end_error > start_error || 2 * end_on < start_on {
-        (u0, v0, texture)
+        (u0, v0)
     } else {
-        (u, v, texture)
+        (u, v)
     }
 }
 

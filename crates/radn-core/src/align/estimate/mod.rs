@@ -40,7 +40,7 @@ impl Default for EstimateParams {
         Self {
             max_pixels: 600_000,
             dis: DisParams::default(),
-            shot_match: 0.4,
+            shot_match: 0.2,
             match_tolerance: 0.1,
             round_trip_px: 1.0,
         }
@@ -340,22 +340,24 @@ pub fn upsample_rows(flow: &Plane, f: usize, width: usize, rows: std::ops::Range
     out
 }
 
-/// The fraction of `a`'s pixels that land on screen in `b` along `ab`, return within
+/// Of `a`'s pixels that land on screen in `b` along `ab` (0 when fewer than a quarter do), the
+/// fraction that return within
 /// [`EstimateParams::round_trip_px`] along `ba`, and match `b` there within
 /// [`EstimateParams::match_tolerance`].
 fn matched_fraction(a: &Plane, b: &Plane, ab: &Plane, ba: &Plane, p: &EstimateParams) -> f32 {
     let (w, h, nc) = (a.width(), a.height(), a.channels());
     let tol2 = p.match_tolerance * p.match_tolerance * nc as f32;
-    let matched: usize = (0..h)
+    let (matched, on_screen): (usize, usize) = (0..h)
         .into_par_iter()
         .map(|y| {
-            let mut n = 0;
+            let (mut n, mut on) = (0, 0);
             for x in 0..w {
                 let (u, v) = (ab.get(x, y, 0), ab.get(x, y, 1));
                 let (px, py) = (x as f32 + u, y as f32 + v);
                 if !(px >= -0.5 && py >= -0.5 && px <= w as f32 - 0.5 && py <= h as f32 - 0.5) {
                     continue;
                 }
+                on += 1;
                 let back = |c: usize| sample(ba, c, px, py);
                 if (u + back(0)).hypot(v + back(1)) > p.round_trip_px {
                     continue;
@@ -369,10 +371,15 @@ fn matched_fraction(a: &Plane, b: &Plane, ab: &Plane, ba: &Plane, p: &EstimatePa
                     n += 1;
                 }
             }
-            n
+            (n, on)
         })
-        .sum();
-    matched as f32 / (w * h).max(1) as f32
+        .reduce(|| (0, 0), |a, b| (a.0 + b.0, a.1 + b.1));
+    // pixels that leave the view (a fast pan) are not evidence of a cut; a motion that sends
+    // most of the frame off screen is
+    if on_screen * 4 < w * h {
+        return 0.0;
+    }
+    matched as f32 / on_screen as f32
 }
 
 #[cfg(test)]
