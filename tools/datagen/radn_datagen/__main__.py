@@ -64,7 +64,7 @@ def scene_settings(seed, spp_choices, res, res_scales, extra_spp):
 
 def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, half, threads, layout=None,
                  calibration=False, levels=LEVELS, log=print, detail=False, extra_spp=(), teacher=None,
-                 cycles_denoise=False, fur=False, contact=False, extra_frames=None):
+                 cycles_denoise=False, fur=False, contact=False, extra_frames=None, motion_blur=False):
     """Renders one scene: the input levels (`levels` and `extra_spp`, the latter only on
     `extra_frames` when given), the optional reference, and the optional teacher render
     (`teacher` spp) with its OIDN pseudo-reference."""
@@ -77,7 +77,7 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         desc = scenes.build(seed, frames=frames, resolution=res, layout=layout, detail=detail, fur=fur,
                             contact=contact)
     sc = scenes.bpy.context.scene
-    render.configure(sc, exr_half=half, threads=threads, cycles_denoise=cycles_denoise)
+    render.configure(sc, exr_half=half, threads=threads, cycles_denoise=cycles_denoise, motion_blur=motion_blur)
     hair = None if calibration else scenes.hair_fingerprint()
     for lv in levels:
         if lv not in LEVELS:
@@ -113,6 +113,8 @@ def render_scene(seed, out, frames, res, spp, reference_spp, reference_frames, h
         + (["Noisy Image"] if cycles_denoise else []),
         "cycles_denoising": ("Cycles' OIDN: Combined is denoised, Noisy Image the noisy beauty"
                              if cycles_denoise else "off"),
+        "motion_blur": ("half-frame shutter centred on the frame; the Vector pass is all zero"
+                        if motion_blur else "off"),
         "render_seconds_this_run": round(time.time() - t0, 1),
         "detail": bool(detail),
         "fur": bool(fur),
@@ -155,6 +157,9 @@ def main(argv=None):
     common.add_argument("--threads", type=int, default=0, help="render threads (0: all cores)")
     common.add_argument("--layout", choices=["indoor", "outdoor"], default=None, help="force a layout")
     common.add_argument("--levels", default=",".join(LEVELS), help="noise levels to render (comma-separated)")
+    common.add_argument("--motion-blur", action="store_true",
+                        help="render with motion blur (every level and the reference; Cycles then writes no "
+                             "usable Vector pass)")
     common.add_argument("--cycles-denoise", action="store_true",
                         help="run Cycles' own denoiser too: Combined is then denoised and the noisy beauty is "
                              "written as Noisy Image (for radn's --guide denoised)")
@@ -245,7 +250,8 @@ def main(argv=None):
         teacher = teacher_spp(a.teacher_spp, spp) or None
         return render_scene(seed, out, frames, scene_res, spp, a.reference_spp, ref_frames, a.half, a.threads,
                             a.layout, calibration, levels=levels, detail=detail, extra_spp=extra, teacher=teacher,
-                            cycles_denoise=a.cycles_denoise, fur=fur, contact=contact, extra_frames=extra_frames)
+                            cycles_denoise=a.cycles_denoise, fur=fur, contact=contact, extra_frames=extra_frames,
+                            motion_blur=a.motion_blur)
 
     if a.cmd == "scene":
         print(f"wrote {one(a.seed, a.out, a.detail, a.fur, a.contact, a.calibration)}")

@@ -15,11 +15,13 @@ from . import LEVELS, REFERENCE
 from .levels import level_spp, sampling_seed
 
 
-def configure(scene, exr_half=False, clamp_indirect=10.0, threads=0, cycles_denoise=False):
-    """Cycles on the CPU with radn's passes, no adaptive sampling, no motion blur, and no
-    denoising unless `cycles_denoise`: then Cycles' own OIDN runs (albedo + normal prefiltered
-    to "accurate") and, with the denoising data stored, each file holds the noisy beauty as
-    "Noisy Image" and Cycles' denoised one as "Combined" (radn's `--guide denoised`)."""
+def configure(scene, exr_half=False, clamp_indirect=10.0, threads=0, cycles_denoise=False, motion_blur=False):
+    """Cycles on the CPU with radn's passes, no adaptive sampling, no motion blur unless
+    `motion_blur` (a half-frame shutter centred on the frame; Cycles then writes its Vector pass
+    as zeros, and radn finds the motion itself), and no denoising unless `cycles_denoise`: then
+    Cycles' own OIDN runs (albedo + normal prefiltered to "accurate") and, with the denoising
+    data stored, each file holds the noisy beauty as "Noisy Image" and Cycles' denoised one as
+    "Combined" (radn's `--guide denoised`)."""
     scene.render.engine = "CYCLES"
     scene.cycles.device = "CPU"
     scene.cycles.use_denoising = bool(cycles_denoise)
@@ -31,7 +33,10 @@ def configure(scene, exr_half=False, clamp_indirect=10.0, threads=0, cycles_deno
     scene.cycles.use_animated_seed = False
     scene.cycles.sample_clamp_indirect = clamp_indirect
     scene.cycles.time_limit = 0
-    scene.render.use_motion_blur = False
+    scene.render.use_motion_blur = bool(motion_blur)
+    if motion_blur:
+        scene.render.motion_blur_shutter = 0.5
+        scene.render.motion_blur_position = "CENTER"
     scene.render.film_transparent = False
     if threads:
         scene.render.threads_mode = "FIXED"
