@@ -17,9 +17,10 @@ def sampling_seed(scene_seed: int, level: str, frame: int) -> int:
     return int.from_bytes(h.digest(), "little") & 0x7FFFFFFF
 
 
-def configure(scene, pattern: str, clamp_indirect: float):
-    """CPU Cycles with the passes radn reads (motion vectors need motion blur off), no adaptive
-    sampling and no denoising; float EXR."""
+def configure(scene, pattern: str, clamp_indirect: float, motion_blur: bool = False):
+    """CPU Cycles with the passes radn reads, no adaptive sampling and no denoising; float EXR.
+    With `motion_blur` a half-frame shutter centred on the frame: Cycles then writes its Vector
+    pass as zeros, and radn finds the motion itself."""
     c = scene.cycles
     scene.render.engine = "CYCLES"
     c.device = "CPU"
@@ -28,7 +29,10 @@ def configure(scene, pattern: str, clamp_indirect: float):
     c.sampling_pattern = pattern
     c.sample_clamp_indirect = clamp_indirect
     c.max_bounces = 8
-    scene.render.use_motion_blur = False
+    scene.render.use_motion_blur = motion_blur
+    if motion_blur:
+        scene.render.motion_blur_shutter = 0.5
+        scene.render.motion_blur_position = "CENTER"
     scene.render.film_transparent = False
     vl = scene.view_layers[0]
     for p in ("combined", "vector", "z", "normal"):

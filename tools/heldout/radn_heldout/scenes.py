@@ -110,14 +110,18 @@ def key_each_frame(obj, path, frames, value):
 
 
 def camera(frames, start, end, target_start, target_end, lens):
-    """A camera moving from `start` to `end` while looking from `target_start` to `target_end`."""
+    """A camera moving from `start` to `end` while looking from `target_start` to `target_end`
+    (times the scene's `radn_camera_speed`, where it is set, as far)."""
     cam = bpy.data.objects.new("camera", bpy.data.cameras.new("camera"))
     bpy.context.collection.objects.link(cam)
     cam.data.lens = lens
     bpy.context.scene.camera = cam
     s, e, ts, te = (np.array(v, float) for v in (start, end, target_start, target_end))
+    # a fast camera runs further along the same line in the same frames
+    speed = float(bpy.context.scene.get("radn_camera_speed", 1.0))
 
     def pose(t):
+        t *= speed
         p, q = s + (e - s) * t, ts + (te - ts) * t
         d = q - p
         return tuple(p), (math.atan2(math.hypot(d[0], d[1]), -d[2]), 0.0, math.atan2(d[1], d[0]) - math.pi / 2)

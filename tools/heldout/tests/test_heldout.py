@@ -16,10 +16,10 @@ HERE = Path(__file__).resolve().parent
 PASSES = ("Combined", "Denoising Albedo", "Denoising Normal.X", "Denoising Depth.Z", "Vector.X", "Vector.Y")
 
 
-def render(out: Path, family: str, seed=5, frames="1-1", spp=1, res="48x32"):
+def render(out: Path, family: str, seed=5, frames="1-1", spp=1, res="48x32", extra=()):
     subprocess.run([sys.executable, "-m", "radn_heldout", "scene", "--seed", str(seed), "--family", family,
                     "--res", res, "--frames", frames, "--levels", f"low:{spp}", "--reference-spp", "0",
-                    "--out", str(out)], cwd=HERE.parent, check=True, capture_output=True)
+                    "--out", str(out), *extra], cwd=HERE.parent, check=True, capture_output=True)
 
 
 def layers(path: Path) -> dict:
@@ -64,3 +64,31 @@ def test_the_previous_frame_warped_by_the_motion_vectors_matches_this_one(tmp_pa
     warped = np.abs(prev[py, px] - cur).mean()
     still = np.abs(prev - cur).mean()
     assert warped < 0.6 * still, f"warped {warped:.4f} vs not warped {still:.4f}"
+
+
+def test_motion_blur_writes_no_vectors_and_a_fast_camera_moves_further(tmp_path):
+    render(tmp_path / "blur", "facade", frames="1-2", extra=["--motion-blur"])
+    m = json.loads((tmp_path / "blur" / "manifest.json").read_text())
+    assert m["motion_blur"].startswith("half-frame shutter") and m["camera_speed"] == 1.0
+    ls = layers(tmp_path / "blur" / "low" / "frame_0002.exr")
+    assert not np.any(ls["Vector.X"]) and not np.any(ls["Vector.Y"]), "Cycles writes zeros with motion blur"
+    motion = {}
+    for speed in (1, 3):
+        render(tmp_path / f"s{speed}", "facade", frames="1-2", extra=["--camera-speed", str(speed)])
+        v = layers(tmp_path / f"s{speed}" / "low" / "frame_0002.exr")
+        motion[speed] = float(np.abs(v["Vector.X"]).mean() + np.abs(v["Vector.Y"]).mean())
+    assert motion[3] > 2.5 * motion[1] > 0, motion
+
+
+def test_two_scenes_join_into_a_sequence_with_a_cut(tmp_path):
+    render(tmp_path / "a", "shelves", seed=3, frames="1-2")
+    render(tmp_path / "b", "haze", seed=4, frames="1-2")
+    out = tmp_path / "ab"
+    subprocess.run([sys.executable, "-m", "radn_heldout", "join", "--out", str(out), str(tmp_path / "a"),
+                    str(tmp_path / "b")], cwd=HERE.parent, check=True, capture_output=True)
+    assert sorted(p.name for p in (out / "low").iterdir()) == [f"frame_000{f}.exr" for f in range(1, 5)]
+    assert (out / "low" / "frame_0003.exr").read_bytes() == (tmp_path / "b" / "low" / "frame_0001.exr").read_bytes()
+    assert json.loads((out / "manifest.json").read_text())["cut_after"] == 2
+    again = subprocess.run([sys.executable, "-m", "radn_heldout", "join", "--out", str(out), str(tmp_path / "a"),
+                            str(tmp_path / "b")], cwd=HERE.parent, capture_output=True, text=True)
+    assert again.returncode != 0 and "exists" in again.stderr
