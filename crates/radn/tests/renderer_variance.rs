@@ -136,7 +136,12 @@ fn errors(root: &Path, sigma: f32, method: &[&str]) -> (f32, f32, f32) {
 
 #[test]
 fn with_the_renderers_variance_the_fallbacks_keep_a_clean_renders_detail_and_still_denoise() {
-    for method in [&["--method", "classic"][..], &["--guide", "none"][..]] {
+    // the files' motion is all zero (the wall does not move): the renderer's word, not motion
+    // estimated from the moving shading
+    for method in [
+        &["--method", "classic", "--motion", "renderer"][..],
+        &["--guide", "none", "--motion", "renderer"][..],
+    ] {
         let d = tempfile::tempdir().unwrap();
         // a clean render (noise 0.01 against stripes of 0.3): with the variance neither ends
         // below its input, and both keep more of the stripes than without it (the unguided

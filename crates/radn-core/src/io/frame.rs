@@ -231,6 +231,34 @@ impl FrameReader {
         }
     }
 
+    /// The error for a file without the mapping's motion channels (`names`: its channels).
+    fn no_motion(&self, path: PathBuf, names: &[String]) -> Error {
+        let looked_for = [&self.mapping.motion_prev, &self.mapping.motion_next]
+            .iter()
+            .filter_map(|m| m.as_ref())
+            .map(|m| describe(&m.layer, &m.channels))
+            .collect::<Vec<_>>()
+            .join(" or ");
+        Error::MissingChannel {
+            path,
+            what: "motion vector".into(),
+            preset: self.mapping.name.clone(),
+            looked_for: if looked_for.is_empty() {
+                "(the mapping defines none)".into()
+            } else {
+                looked_for
+            },
+            present: names.join(", "),
+        }
+    }
+
+    /// The error for a frame of `path` read without motion channels in a sequence aligned by the
+    /// renderer's vectors (the other frames have them).
+    pub fn missing_motion(&self, path: &Path) -> Error {
+        let names = ExrFile::read_channel_names(path).unwrap_or_default();
+        self.no_motion(path.to_path_buf(), &names)
+    }
+
     /// The reader for a method that denoises each frame alone: it needs `require` and reads
     /// no motion, depth or variance (a frame's band then holds only what the method uses).
     pub fn per_frame(mut self, require: Requirements) -> Self {
@@ -358,23 +386,7 @@ impl FrameReader {
             &mut repaired,
         )?;
         if self.require.motion && motion_prev.is_none() && motion_next.is_none() {
-            let looked_for = [&self.mapping.motion_prev, &self.mapping.motion_next]
-                .iter()
-                .filter_map(|m| m.as_ref())
-                .map(|m| describe(&m.layer, &m.channels))
-                .collect::<Vec<_>>()
-                .join(" or ");
-            return Err(Error::MissingChannel {
-                path,
-                what: "motion vector".into(),
-                preset: self.mapping.name.clone(),
-                looked_for: if looked_for.is_empty() {
-                    "(the mapping defines none)".into()
-                } else {
-                    looked_for
-                },
-                present: names.join(", "),
-            });
+            return Err(self.no_motion(path, &names));
         }
         let mut aovs = Vec::new();
         for name in &self.aovs {

@@ -425,6 +425,8 @@ impl SequenceJob {
                         if let Some(b) = signal {
                             motion.add_signal(k, b.finish(), name);
                         }
+                    } else if r > 0 && motion.lacks_vectors(vectors) {
+                        return Err(self.reader.missing_motion(&self.inputs[k].1));
                     }
                     report.repaired += s.repaired;
                     e.insert(s);

@@ -159,6 +159,12 @@ impl SequenceMotion {
         Ok(source)
     }
 
+    /// Whether a frame holding `vectors` lacks what the sequence is aligned with: its first
+    /// frame had the renderer's vectors, this one has no motion channels.
+    pub fn lacks_vectors(&self, vectors: Vectors) -> bool {
+        self.source == Some(MotionSource::Renderer) && vectors == Vectors::Missing
+    }
+
     /// Whether motion is estimated (once decided).
     pub fn estimating(&self) -> bool {
         self.source.is_some_and(|s| s != MotionSource::Renderer)

@@ -138,7 +138,8 @@ impl<'a> WindowReader<'a> {
                 self.repaired += frame.repaired;
                 let mut estimated = false;
                 if let Some(m) = &mut self.motion {
-                    if m.decide(Vectors::of(&frame), &self.files[k])? != MotionSource::Renderer {
+                    let vectors = Vectors::of(&frame);
+                    if m.decide(vectors, &self.files[k])? != MotionSource::Renderer {
                         frame.motion_prev = None;
                         frame.motion_next = None;
                         let signal = super::timing::timed("motion estimation", || {
@@ -147,6 +148,8 @@ impl<'a> WindowReader<'a> {
                         let files = self.files;
                         m.add_signal(k, signal, |i| file_name(&files[i]));
                         estimated = true;
+                    } else if m.lacks_vectors(vectors) {
+                        return Err(self.reader.missing_motion(&self.files[k]));
                     }
                 }
                 e.insert((frame, self.keep_files.then_some(file)));

@@ -139,9 +139,14 @@ pub struct Args {
         help_heading = "Performance"
     )]
     pub bands: crate::input::BandsArg,
-    /// Motion the frames are aligned with: auto (the renderer's vectors where the files have
-    /// them, else estimated from the frames), renderer, or estimate.
-    #[arg(long, default_value = "auto", value_name = "SOURCE", value_parser = ["auto", "renderer", "estimate"])]
+    /// Motion source: auto, renderer or estimate (from the frames).
+    #[arg(
+        long,
+        default_value = "auto",
+        value_name = "SOURCE",
+        value_parser = ["auto", "renderer", "estimate"],
+        hide_possible_values = true
+    )]
     pub motion: String,
     /// Tiles per network call.
     #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u32).range(1..),
