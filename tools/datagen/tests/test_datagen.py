@@ -229,28 +229,21 @@ def test_combine_weights_renders_by_samples_and_names_a_missing_frame(tmp_path):
     assert not (tmp_path / "out2").exists()
 
 
-def test_motion_blur_smears_the_moving_edges_and_leaves_no_vectors(calib, tmp_path):
+def test_motion_blur_is_recorded_and_leaves_cycles_no_vectors(calib, tmp_path):
     out = tmp_path / "blur"
     cmd = [sys.executable, "-m", "radn_datagen", "scene", "--calibration", "--seed", "0", "--out", str(out),
-           "--frames", "1-2", "--res", "64x48", "--spp", "32", "--levels", "low", "--reference-spp", "512",
-           "--motion-blur"]
+           "--frames", "1-2", "--res", "64x48", "--spp", "8", "--levels", "low", "--motion-blur"]
     subprocess.run(cmd, cwd=DATAGEN, check=True, capture_output=True)
     with open(out / "manifest.json") as f:
         assert json.load(f)["motion_blur"].startswith("half-frame shutter")
-    ch = channels(out / "ref" / "frame_0002.exr")
-    # Cycles writes the Vector pass as zeros with motion blur: what radn reads as "no vectors"
-    assert all(np.all(ch[f"ViewLayer.Vector.{c}"] == 0) for c in "XYZW")
-    sharp = channels(os.path.join(calib, "ref", "frame_0002.exr"))
-    obj = sharp["ViewLayer.Depth.Z"] < 1e5
-    inner, near = obj.copy(), obj.copy()
-    for dy in (-2, -1, 0, 1, 2):
-        for dx in (-2, -1, 0, 1, 2):
-            inner &= np.roll(np.roll(obj, dy, 0), dx, 1)
-            near |= np.roll(np.roll(obj, dy, 0), dx, 1)
-    edge = near & ~inner
-    diff = np.abs(rgb(ch) - rgb(sharp)).mean(-1)
-    # the plane moves (2, 1) px per frame: its edges smear, its inside is the same surface
-    assert diff[edge].mean() > 5 * diff[inner].mean(), (diff[edge].mean(), diff[inner].mean())
+    with open(os.path.join(calib, "manifest.json")) as f:
+        assert json.load(f)["motion_blur"] == "off"
+    # the same moving plane: Cycles writes its motion without motion blur, zeros with it (what
+    # radn reads as "no vectors" and estimates motion for)
+    sharp = channels(os.path.join(calib, "low", "frame_0002.exr"))
+    blurred = channels(out / "low" / "frame_0002.exr")
+    assert np.any(sharp["ViewLayer.Vector.X"] != 0)
+    assert all(np.all(blurred[f"ViewLayer.Vector.{c}"] == 0) for c in "XYZW")
 
 
 def test_extra_levels_render_only_their_frames_of_the_same_scene(tmp_path):
