@@ -187,14 +187,16 @@ fn a_cut_is_found_and_the_frames_beside_it_equal_sequences_that_end_there() {
                 log.contains("cut between frame_0005.exr and frame_0006.exr"),
                 "{log}"
             );
+            // an event line starts with its name (what the Python package reads)
             let events: Vec<serde_json::Value> = log
                 .lines()
+                .filter(|l| l.starts_with("{\"event\""))
                 .filter_map(|l| serde_json::from_str(l).ok())
                 .collect();
             assert!(
                 events
                     .iter()
-                    .any(|e| e["event"] == "cut" && e["between"] == serde_json::json!([5, 6])),
+                    .any(|e| e["event"] == "cut" && e["frames"] == serde_json::json!([5, 6])),
                 "{log}"
             );
             assert_eq!(joined_a, alone_a, "the last frame before the cut");

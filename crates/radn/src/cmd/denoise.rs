@@ -346,10 +346,11 @@ pub fn run(a: Args) -> Result<()> {
             )
         );
     }
+    // (keys sort after "event": programs read a line starting `{"event"` as an event)
     for (before, after) in &report.cuts {
         crate::progress::event(serde_json::json!({
             "event": "cut",
-            "between": [before, after],
+            "frames": [before, after],
         }));
     }
     crate::progress::event(serde_json::json!({
@@ -357,7 +358,6 @@ pub fn run(a: Args) -> Result<()> {
         "written": report.written,
         "skipped": report.skipped,
         "repaired": report.repaired,
-        "cuts": report.cuts,
         "seconds": t.elapsed().as_secs_f64(),
     }));
     Ok(())
