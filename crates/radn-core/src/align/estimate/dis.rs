@@ -5,6 +5,7 @@
 
 use rayon::prelude::*;
 
+use crate::align::motion::bilinear;
 use crate::image::plane::Plane;
 
 /// Settings of the flow solver.
@@ -93,23 +94,8 @@ fn upsample_flow(f: &Plane, w: usize, h: usize) -> Plane {
     Plane::from_fn(w, h, 2, |x, y, c| {
         let fx = (x as f32 + 0.5) / sx - 0.5;
         let fy = (y as f32 + 0.5) / sy - 0.5;
-        sample(f, c, fx, fy) * if c == 0 { sx } else { sy }
+        bilinear(f, c, fx, fy) * if c == 0 { sx } else { sy }
     })
-}
-
-/// Bilinear lookup of channel `c` with the edges repeated.
-#[inline]
-pub(crate) fn sample(p: &Plane, c: usize, x: f32, y: f32) -> f32 {
-    let (w, h) = (p.width(), p.height());
-    let xf = x.clamp(0.0, (w - 1) as f32);
-    let yf = y.clamp(0.0, (h - 1) as f32);
-    let (x0, y0) = (xf as usize, yf as usize);
-    let (x1, y1) = ((x0 + 1).min(w - 1), (y0 + 1).min(h - 1));
-    let (fx, fy) = (xf - x0 as f32, yf - y0 as f32);
-    let ch = p.channel(c);
-    let top = ch[y0 * w + x0] + (ch[y0 * w + x1] - ch[y0 * w + x0]) * fx;
-    let bottom = ch[y1 * w + x0] + (ch[y1 * w + x1] - ch[y1 * w + x0]) * fx;
-    top + (bottom - top) * fy
 }
 
 /// Where the patches of one axis start: every `stride` pixels, and one flush with the far edge.
@@ -160,7 +146,7 @@ fn level(a: &Plane, b: &Plane, init: &Plane, p: &DisParams) -> Plane {
                         let (u, v) = patches[j * xs.len() + i];
                         let mut e = 0f32;
                         for c in 0..nc {
-                            let d = sample(b, c, x as f32 + u, y as f32 + v) - a.get(x, y, c);
+                            let d = bilinear(b, c, x as f32 + u, y as f32 + v) - a.get(x, y, c);
                             e += d * d;
                         }
                         let wgt = 1.0 / e.max(1e-6);
@@ -402,6 +388,18 @@ mod tests {
             + 0.25 * (0.05 * x * (1.0 + 0.1 * k) - 0.09 * y).cos()
     }
 
+    /// The largest distance of `flow` from `(dx, dy)` at least `margin` pixels from the edges.
+    fn worst_error(flow: &Plane, (dx, dy): (f32, f32), margin: usize) -> f32 {
+        let (w, h) = (flow.width(), flow.height());
+        let mut worst = 0f32;
+        for y in margin..h - margin {
+            for x in margin..w - margin {
+                worst = worst.max((flow.get(x, y, 0) - dx).hypot(flow.get(x, y, 1) - dy));
+            }
+        }
+        worst
+    }
+
     #[test]
     fn a_sub_pixel_shift_is_found_to_a_hundredth_of_a_pixel() {
         let (w, h) = (96, 80);
@@ -410,13 +408,7 @@ mod tests {
         let a = Plane::from_fn(w, h, 3, |x, y, c| texture(x as f32, y as f32, c));
         let b = Plane::from_fn(w, h, 3, |x, y, c| texture(x as f32 - dx, y as f32 - dy, c));
         let f = dis_flow(&a, &b, &DisParams::default());
-        let mut worst = 0f32;
-        for y in 8..h - 8 {
-            for x in 8..w - 8 {
-                let e = (f.get(x, y, 0) - dx).hypot(f.get(x, y, 1) - dy);
-                worst = worst.max(e);
-            }
-        }
+        let worst = worst_error(&f, (dx, dy), 8);
         assert!(worst < 0.01, "worst error {worst} px");
     }
 
@@ -428,12 +420,7 @@ mod tests {
         let b = Plane::from_fn(w, h, 3, |x, y, c| texture(x as f32 - dx, y as f32 - dy, c));
         let f = dis_flow(&a, &b, &DisParams::default());
         // away from the border the shift brings in from outside
-        let mut worst = 0f32;
-        for y in 24..h - 24 {
-            for x in 24..w - 24 {
-                worst = worst.max((f.get(x, y, 0) - dx).hypot(f.get(x, y, 1) - dy));
-            }
-        }
+        let worst = worst_error(&f, (dx, dy), 24);
         assert!(worst < 0.02, "worst error {worst} px");
     }
 

@@ -12,7 +12,8 @@ pub mod dis;
 
 use rayon::prelude::*;
 
-use self::dis::{dis_flow, sample, DisParams};
+use self::dis::{dis_flow, DisParams};
+use crate::align::motion::bilinear;
 use crate::image::plane::Plane;
 use crate::io::frame::Frame;
 
@@ -358,13 +359,13 @@ fn matched_fraction(a: &Plane, b: &Plane, ab: &Plane, ba: &Plane, p: &EstimatePa
                     continue;
                 }
                 on += 1;
-                let back = |c: usize| sample(ba, c, px, py);
+                let back = |c: usize| bilinear(ba, c, px, py);
                 if (u + back(0)).hypot(v + back(1)) > p.round_trip_px {
                     continue;
                 }
                 let mut e = 0f32;
                 for c in 0..nc {
-                    let d = sample(b, c, px, py) - a.get(x, y, c);
+                    let d = bilinear(b, c, px, py) - a.get(x, y, c);
                     e += d * d;
                 }
                 if e <= tol2 {
