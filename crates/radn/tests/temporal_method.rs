@@ -37,6 +37,7 @@ fn model_with(path: &Path, gate: f32, levels: Vec<usize>, warp: WarpSpace) {
             levels,
             color_confidence: Some(0.6),
             warp,
+            aux: Default::default(),
         },
         &device,
     )

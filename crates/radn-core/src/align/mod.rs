@@ -96,6 +96,26 @@ impl AlignedWindow {
     pub fn radius(&self) -> usize {
         self.frames.len() / 2
     }
+
+    /// The albedo and the normal averaged over the window: the sampling noise that differs
+    /// from frame to frame (depth of field, motion blur, glossy and glass paths) averages out,
+    /// while side frames hold the centre's values wherever their confidence is low (centre
+    /// mixing), so nothing misaligned comes in. `None` where the frames lack the buffer.
+    pub fn mean_auxiliaries(&self) -> (Option<Plane>, Option<Plane>) {
+        let mean = |pick: fn(&AlignedFrame) -> Option<&Plane>| -> Option<Plane> {
+            let planes: Vec<&Plane> = self.frames.iter().map(pick).collect::<Option<_>>()?;
+            let mut sum = planes[0].clone();
+            let n = planes.len() as f32;
+            sum.data_mut()
+                .par_iter_mut()
+                .enumerate()
+                .for_each(|(i, v)| {
+                    *v = planes.iter().map(|p| p.data()[i]).sum::<f32>() / n;
+                });
+            Some(sum)
+        };
+        (mean(|f| f.albedo.as_ref()), mean(|f| f.normal.as_ref()))
+    }
 }
 
 /// Aligns a window of frames onto its centre. `window[k]` is `None` for frames beyond the
@@ -416,4 +436,110 @@ pub fn window_indices(index: usize, len: usize, radius: usize) -> Vec<Option<usi
             (i >= 0 && i < len as i64).then_some(i as usize)
         })
         .collect()
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A still, textured surface whose albedo and normal carry noise of their own in frame `k`.
+    fn frame(k: u32) -> Frame {
+        let (w, h) = (24, 16);
+        let noise = |x: usize, y: usize, c: usize| {
+            let i = (x as u32 * 73_856_093)
+                ^ (y as u32 * 19_349_663)
+                ^ ((c as u32 + 3 * k) * 83_492_791);
+            ((i.wrapping_mul(2_654_435_761) >> 8) % 1000) as f32 / 1000.0 * 0.04 - 0.02
+        };
+        let mut f = Frame::synthetic(Plane::from_fn(w, h, 3, |x, y, c| {
+            0.4 + 0.1 * ((x * 3 + y * 5 + c) % 7) as f32 / 7.0
+        }));
+        f.albedo = Some(Plane::from_fn(w, h, 3, |x, y, c| {
+            clean_albedo(x, y, c) + noise(x, y, c)
+        }));
+        f.normal = Some(Plane::from_fn(w, h, 3, |x, y, c| {
+            [0.0, 0.0, 1.0][c] + noise(x, y, c + 3)
+        }));
+        f.motion_prev = Some(Plane::zeros(w, h, 2));
+        f.motion_next = Some(Plane::zeros(w, h, 2));
+        f
+    }
+
+    fn clean_albedo(x: usize, y: usize, c: usize) -> f32 {
+        0.3 + 0.05 * c as f32 + 0.02 * ((x + y) % 5) as f32
+    }
+
+    fn largest_difference(a: &Plane, b: &Plane) -> f32 {
+        a.data()
+            .iter()
+            .zip(b.data())
+            .map(|(p, q)| (p - q).abs())
+            .fold(0.0, f32::max)
+    }
+
+    /// The window's albedo and normal are the mean of its frames mixed towards the centre by
+    /// their confidence: closer to the noise-free albedo than the centre frame's own; beyond
+    /// the sequence's ends (zero confidence) the centre's own buffers come back.
+    #[test]
+    fn mean_auxiliaries_average_trusted_frames_and_keep_the_centre_elsewhere() {
+        let frames: Vec<Frame> = (0..3).map(frame).collect();
+        let window: Vec<Option<&Frame>> = frames.iter().map(Some).collect();
+        let win = align_window(&window, &AlignParams::default());
+        let (albedo, normal) = win.mean_auxiliaries();
+        let (albedo, normal) = (albedo.unwrap(), normal.unwrap());
+        // each side frame is mixed towards the centre by its confidence, then all are averaged
+        let mean = |pick: fn(&Frame) -> &Plane| {
+            let centre = pick(&frames[1]);
+            let mut m = centre.clone();
+            let n = centre.pixels();
+            for (i, v) in m.data_mut().iter_mut().enumerate() {
+                *v = (0..3)
+                    .map(|k| {
+                        let c = win.frames[k].confidence.data()[i % n];
+                        c * pick(&frames[k]).data()[i] + (1.0 - c) * centre.data()[i]
+                    })
+                    .sum::<f32>()
+                    / 3.0;
+            }
+            m
+        };
+        assert!(largest_difference(&albedo, &mean(|f| f.albedo.as_ref().unwrap())) < 1e-5);
+        assert!(largest_difference(&normal, &mean(|f| f.normal.as_ref().unwrap())) < 1e-5);
+        let rms = |p: &Plane| {
+            let (w, h) = (p.width(), p.height());
+            let mut s = 0.0;
+            for c in 0..3 {
+                for y in 0..h {
+                    for x in 0..w {
+                        s += (p.get(x, y, c) - clean_albedo(x, y, c)).powi(2);
+                    }
+                }
+            }
+            (s / (3 * w * h) as f32).sqrt()
+        };
+        let centre = frames[1].albedo.as_ref().unwrap();
+        assert!(
+            rms(&albedo) < 0.7 * rms(centre),
+            "{} vs {}",
+            rms(&albedo),
+            rms(centre)
+        );
+
+        let alone = align_window(&[None, Some(&frames[1]), None], &AlignParams::default());
+        let (albedo, normal) = alone.mean_auxiliaries();
+        assert!(largest_difference(&albedo.unwrap(), centre) < 1e-6);
+        assert!(largest_difference(&normal.unwrap(), frames[1].normal.as_ref().unwrap()) < 1e-6);
+
+        let bare: Vec<Frame> = (0..3)
+            .map(|k| Frame {
+                normal: None,
+                ..frame(k)
+            })
+            .collect();
+        let bare: Vec<Option<&Frame>> = bare.iter().map(Some).collect();
+        assert!(align_window(&bare, &AlignParams::default())
+            .mean_auxiliaries()
+            .1
+            .is_none());
+    }
 }
