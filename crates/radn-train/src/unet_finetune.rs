@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use radn_core::guide::exposure::ExposureBins;
 use radn_core::Plane;
-use radn_nn::oidn_unet::temporal::{AuxSource, TemporalConfig, TemporalUnet, WarpSpace};
+use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet, WarpSpace};
 use radn_nn::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
 use radn_nn::oidn_unet::{store, temporal_store};
 use radn_nn::{NnError, Result};
@@ -131,10 +131,6 @@ pub struct FinetuneConfig {
     /// ([`TemporalConfig::warp`], kept in the model file); training reads aligned tiles.
     #[serde(default)]
     pub warp: WarpSpace,
-    /// Which albedo and normal the network reads ([`TemporalConfig::aux`], kept in the model
-    /// file); with `window`, the training windows' mean, as at inference.
-    #[serde(default)]
-    pub aux: AuxSource,
 }
 
 fn default_true() -> bool {
@@ -263,7 +259,6 @@ impl Finetune {
             levels: config.levels.clone(),
             color_confidence: config.color_confidence,
             warp: config.warp,
-            aux: config.aux,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;
@@ -369,13 +364,7 @@ impl Finetune {
     /// One optimizer step; returns the training loss.
     pub fn step(&mut self) -> Result<f64> {
         let plan = self.plan(self.state.step);
-        let b = batch(
-            &self.train,
-            &plan,
-            self.config.crop,
-            self.config.aux,
-            &self.device,
-        )?;
+        let b = batch(&self.train, &plan, self.config.crop, &self.device)?;
         let loss = self
             .config
             .loss
@@ -422,13 +411,7 @@ impl Finetune {
                 corner: (0, 0),
                 frames: (0..self.val.manifest.frames).collect(),
             };
-            let b = batch(
-                &self.val,
-                &[whole],
-                self.config.crop,
-                self.config.aux,
-                &plain,
-            )?;
+            let b = batch(&self.val, &[whole], self.config.crop, &plain)?;
             let diff = net.forward(b.window, None) - b.target;
             l1 += diff.clone().abs().mean().into_scalar::<f32>() as f64;
             let mse = diff.powi_scalar(2).mean().into_scalar::<f32>() as f64;
@@ -595,16 +578,8 @@ fn target_for(input: usize) -> usize {
     }
 }
 
-/// Processed windows and PU targets of `plan` (tile, input level, target level, crop corner);
-/// with `aux` [`AuxSource::Window`] every slot reads the mean albedo and normal of the
-/// window's slots, as inference feeds the aligned window's mean.
-fn batch(
-    set: &TileDataset,
-    plan: &[Draw],
-    crop: usize,
-    aux: AuxSource,
-    device: &Device,
-) -> Result<Batch> {
+/// Processed windows and PU targets of `plan` (tile, input level, target level, crop corner).
+fn batch(set: &TileDataset, plan: &[Draw], crop: usize, device: &Device) -> Result<Batch> {
     let m = &set.manifest;
     let (t, s) = (m.frames, m.tile);
     let mut window = Vec::with_capacity(plan.len() * t * 9 * crop * crop);
@@ -629,31 +604,17 @@ fn batch(
         let mut bins = ExposureBins::new(crop, crop);
         bins.add_rows(0, &rgb);
         let scale = bins.exposure();
-        // an auxiliary's value at a slot's frame `k`, or the slots' mean
-        let slots = d.frames.len() as f32;
-        let aux_value = |k: usize, first: usize, c: usize, x: usize, y: usize| match aux {
-            AuxSource::Rendered => features[at(k * channels + first + c, x, y)],
-            AuxSource::Window => {
-                d.frames
-                    .iter()
-                    .map(|&j| features[at(j * channels + first + c, x, y)])
-                    .sum::<f32>()
-                    / slots
-            }
-        };
         for &k in &d.frames {
-            for c in 0..3 {
-                for y in 0..crop {
-                    for x in 0..crop {
-                        window.push(HDR_BEAUTY.input(colour[at(k * 3 + c, x, y)], scale));
-                    }
-                }
-            }
-            for (first, processing) in [(3, AUX_ALBEDO), (6, AUX_NORMAL)] {
+            let planes = [
+                (k * 3, colour, HDR_BEAUTY),
+                (k * channels + 3, features, AUX_ALBEDO),
+                (k * channels + 6, features, AUX_NORMAL),
+            ];
+            for (first, data, processing) in planes {
                 for c in 0..3 {
                     for y in 0..crop {
                         for x in 0..crop {
-                            window.push(processing.input(aux_value(k, first, c, x, y), scale));
+                            window.push(processing.input(data[at(first + c, x, y)], scale));
                         }
                     }
                 }

@@ -62,24 +62,11 @@ pub fn spatial(
         None => builtin(UNET_BEAUTY, "<built-in rt_hdr_alb_nrm>")?,
     };
     Ok(if prefilter {
-        match std::env::var("EXP_PREFILTER_DIR") {
-            Ok(d) => SpatialDenoiser::prefiltered(
-                beauty,
-                UnetFilter::new(&store::load(
-                    &Path::new(&d).join("oidn-rt_alb.safetensors"),
-                    &device,
-                )?),
-                UnetFilter::new(&store::load(
-                    &Path::new(&d).join("oidn-rt_nrm.safetensors"),
-                    &device,
-                )?),
-            ),
-            Err(_) => SpatialDenoiser::prefiltered(
-                beauty,
-                builtin(UNET_ALBEDO, "<built-in rt_alb_large>")?,
-                builtin(UNET_NORMAL, "<built-in rt_nrm_large>")?,
-            ),
-        }
+        SpatialDenoiser::prefiltered(
+            beauty,
+            builtin(UNET_ALBEDO, "<built-in rt_alb_large>")?,
+            builtin(UNET_NORMAL, "<built-in rt_nrm_large>")?,
+        )
     } else {
         SpatialDenoiser::new(beauty)
     })
@@ -92,7 +79,8 @@ pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::Temp
     let net = temporal_store::load(path, &Device::flex())?;
     Ok(TemporalDenoiser::new(
         TemporalFilter::new(&net),
-        net.config(),
+        net.config().color_confidence,
+        net.config().warp,
         path.display().to_string(),
     ))
 }

@@ -37,7 +37,6 @@ fn model_with(path: &Path, gate: f32, levels: Vec<usize>, warp: WarpSpace) {
             levels,
             color_confidence: Some(0.6),
             warp,
-            aux: Default::default(),
         },
         &device,
     )

@@ -32,31 +32,6 @@ pub struct TemporalConfig {
     /// Where the window is moved onto its centre frame at inference.
     #[serde(default)]
     pub warp: WarpSpace,
-    /// Which albedo and normal the U-Net reads.
-    #[serde(default, skip_serializing_if = "AuxSource::is_rendered")]
-    pub aux: AuxSource,
-}
-
-/// The albedo and normal a converted network reads with each frame of its window.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
-#[serde(rename_all = "lowercase")]
-pub enum AuxSource {
-    /// Each frame's auxiliaries as rendered (what OIDN's noisy-auxiliary weights expect).
-    #[default]
-    Rendered,
-    /// The aligned window's mean ([`AlignedWindow::mean_auxiliaries`]): the sampling noise
-    /// that differs from frame to frame averages out, which clean-auxiliary weights
-    /// (`calb_cnrm`) expect, at no network's cost. Windows aligned as images only.
-    ///
-    /// [`AlignedWindow::mean_auxiliaries`]: radn_core::align::AlignedWindow::mean_auxiliaries
-    Window,
-}
-
-impl AuxSource {
-    /// True for [`AuxSource::Rendered`] (the default, left out of model files).
-    pub fn is_rendered(&self) -> bool {
-        *self == AuxSource::Rendered
-    }
 }
 
 /// Where a converted network's window is moved onto its centre frame.
@@ -153,12 +128,6 @@ pub enum TemporalError {
         /// The encoder's deepest level.
         last: usize,
     },
-    /// Auxiliaries cleaned by the aligned window with levels warped as features.
-    #[error(
-        "aux = \"window\" needs warp = \"images\": a frame's levels warped as features are made \
-         before its own window is aligned"
-    )]
-    WindowAuxNeedsImages,
 }
 
 impl TemporalUnet {
@@ -171,9 +140,6 @@ impl TemporalUnet {
     ) -> Result<Self, TemporalError> {
         if config.frames < 3 || config.frames.is_multiple_of(2) {
             return Err(TemporalError::Frames(config.frames));
-        }
-        if config.aux == AuxSource::Window && config.warp == WarpSpace::Features {
-            return Err(TemporalError::WindowAuxNeedsImages);
         }
         let channels = unet.level_channels();
         let last = channels.len() - 1;
@@ -317,7 +283,6 @@ mod tests {
                 levels: vec![1, 2, 3, 4],
                 color_confidence: None,
                 warp: Default::default(),
-                aux: Default::default(),
             },
             &device,
         )
@@ -370,7 +335,6 @@ mod tests {
                     levels,
                     color_confidence: None,
                     warp: Default::default(),
-                    aux: Default::default(),
                 },
                 &device,
             )
@@ -380,32 +344,6 @@ mod tests {
         assert!(bad(4, vec![1]).contains("odd"));
         assert!(bad(5, vec![5]).contains("levels 0 to 4"));
         assert!(bad(5, vec![2, 1]).contains("in order"));
-        let features_with_window_aux = TemporalUnet::convert(
-            unet(&device),
-            TemporalConfig {
-                frames: 5,
-                levels: vec![1],
-                color_confidence: None,
-                warp: WarpSpace::Features,
-                aux: AuxSource::Window,
-            },
-            &device,
-        );
-        assert_eq!(
-            features_with_window_aux.unwrap_err(),
-            TemporalError::WindowAuxNeedsImages
-        );
-        // model files written before the field existed read as rendered auxiliaries
-        let old: TemporalConfig = toml::from_str("frames = 5\nlevels = [1]\n").unwrap();
-        assert_eq!(old.aux, AuxSource::Rendered);
-        let window = TemporalConfig {
-            aux: AuxSource::Window,
-            ..old
-        };
-        assert_eq!(
-            toml::from_str::<TemporalConfig>(&window.to_toml()).unwrap(),
-            window
-        );
     }
 
     #[cfg(feature = "autodiff")]
@@ -423,7 +361,6 @@ mod tests {
                 levels: vec![2, 4],
                 color_confidence: None,
                 warp: Default::default(),
-                aux: Default::default(),
             },
             &device,
         )

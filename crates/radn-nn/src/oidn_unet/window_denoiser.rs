@@ -24,7 +24,7 @@ use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
-use crate::oidn_unet::temporal::{AuxSource, TemporalConfig, WarpSpace};
+use crate::oidn_unet::temporal::WarpSpace;
 use crate::oidn_unet::temporal_filter::{FrameLevels, TemporalFilter};
 
 /// The network's tiles hold at most this many pixels (overlap included) unless set: a 1080p
@@ -46,24 +46,27 @@ pub struct TemporalDenoiser {
     name: String,
     tile_pixels: usize,
     warp: WarpSpace,
-    aux: AuxSource,
     cache: Mutex<LevelCache>,
 }
 
 impl TemporalDenoiser {
     /// Runs `filter` on windows aligned with radn's default alignment (the training tiles')
-    /// and the model's colour term, moved onto the centre and fed auxiliaries as the model's
-    /// `config` says; `name` labels the model in the run's summary.
-    pub fn new(filter: TemporalFilter, config: &TemporalConfig, name: String) -> Self {
+    /// and the colour term `color_confidence` (the model's), moved onto the centre in `warp`
+    /// (the model's); `name` labels the model in the run's summary.
+    pub fn new(
+        filter: TemporalFilter,
+        color_confidence: Option<f32>,
+        warp: WarpSpace,
+        name: String,
+    ) -> Self {
         let mut align = AlignParams::default();
-        align.confidence.color = config.color_confidence;
+        align.confidence.color = color_confidence;
         Self {
             filter,
             align,
             name,
             tile_pixels: DEFAULT_TILE_PIXELS,
-            warp: config.warp,
-            aux: config.aux,
+            warp,
             cache: Mutex::default(),
         }
     }
@@ -79,7 +82,7 @@ impl TemporalDenoiser {
     pub fn summary(&self) -> String {
         let c = self.filter.unet().config();
         format!(
-            "{} ({} over {} frames, OIDN {}, {} warped{})",
+            "{} ({} over {} frames, OIDN {}, {} warped)",
             self.name,
             c.weights,
             self.filter.frames(),
@@ -87,10 +90,6 @@ impl TemporalDenoiser {
             match self.warp {
                 WarpSpace::Images => "images",
                 WarpSpace::Features => "features",
-            },
-            match self.aux {
-                AuxSource::Rendered => "",
-                AuxSource::Window => ", auxiliaries averaged over the window",
             }
         )
     }
@@ -110,27 +109,17 @@ impl TemporalDenoiser {
             detail: e.to_string(),
         };
         let whole = out == (0..centre.height());
-        let mean = match self.aux {
-            AuxSource::Rendered => None,
-            AuxSource::Window => Some(win.mean_auxiliaries()),
-        };
         // one plane per frame of the window through the network, with every frame's aligned
-        // auxiliaries or the window's mean
+        // auxiliaries
         let run = |planes: &[Cow<Plane>], scale: f32| -> Result<Plane> {
             let images: Vec<UnetImages> = win
                 .frames
                 .iter()
                 .zip(planes)
-                .map(|(f, p)| {
-                    let (albedo, normal) = match &mean {
-                        None => (f.albedo.as_ref(), f.normal.as_ref()),
-                        Some((a, n)) => (a.as_ref(), n.as_ref()),
-                    };
-                    UnetImages {
-                        color: Some(p),
-                        albedo,
-                        normal,
-                    }
+                .map(|(f, p)| UnetImages {
+                    color: Some(p),
+                    albedo: f.albedo.as_ref(),
+                    normal: f.normal.as_ref(),
                 })
                 .collect();
             let d = self
