@@ -1,5 +1,6 @@
 """python3 -m radn_heldout scene|dataset: render held-out Cycles scenes in radn's layout."""
 import argparse
+import json
 import os
 import sys
 import time
@@ -76,6 +77,12 @@ def join(out, first, second):
         raise SystemExit(f"{first} and {second} share no level folder")
     if os.path.exists(out):
         raise SystemExit(f"{out} exists; choose a new folder")
+    # an edit cuts between shots of one format: radn refuses sequences whose frames differ in size
+    sizes = [json.load(open(os.path.join(s, "manifest.json"))).get("resolution") for s in (first, second)]
+    if sizes[0] != sizes[1]:
+        raise SystemExit(f"{first} is {'x'.join(map(str, sizes[0]))} and {second} is "
+                         f"{'x'.join(map(str, sizes[1]))}: render the second at the first's size "
+                         "(radn_heldout scene --res)")
     # where both have references, the first scene ends on its last reference frame and the
     # second starts on its first, so the frames beside the cut can be scored
     refs = REFERENCE in shared

@@ -92,3 +92,8 @@ def test_two_scenes_join_into_a_sequence_with_a_cut(tmp_path):
     again = subprocess.run([sys.executable, "-m", "radn_heldout", "join", "--out", str(out), str(tmp_path / "a"),
                             str(tmp_path / "b")], cwd=HERE.parent, capture_output=True, text=True)
     assert again.returncode != 0 and "exists" in again.stderr
+    render(tmp_path / "c", "haze", seed=4, frames="1-2", res="64x32")
+    other = subprocess.run([sys.executable, "-m", "radn_heldout", "join", "--out", str(tmp_path / "ac"),
+                            str(tmp_path / "a"), str(tmp_path / "c")], cwd=HERE.parent, capture_output=True, text=True)
+    assert other.returncode != 0 and "48x32" in other.stderr and "64x32" in other.stderr
+    assert not (tmp_path / "ac").exists()
