@@ -21,7 +21,7 @@ use serde::{Deserialize, Serialize};
 
 use radn_core::guide::exposure::ExposureBins;
 use radn_core::Plane;
-use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet, WarpSpace};
+use radn_nn::oidn_unet::temporal::{AuxSource, TemporalConfig, TemporalUnet, WarpSpace};
 use radn_nn::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
 use radn_nn::oidn_unet::{store, temporal_store};
 use radn_nn::{NnError, Result};
@@ -259,6 +259,8 @@ impl Finetune {
             levels: config.levels.clone(),
             color_confidence: config.color_confidence,
             warp: config.warp,
+            // the tiles hold the auxiliaries as rendered
+            aux: AuxSource::Rendered,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;

@@ -41,6 +41,12 @@ const UNET_ALBEDO: &[u8] = include_bytes!("../../../models/oidn-rt_alb_large.saf
 /// OIDN's large normal prefilter (`rt_nrm_large`).
 const UNET_NORMAL: &[u8] = include_bytes!("../../../models/oidn-rt_nrm_large.safetensors");
 
+/// OIDN's standard albedo prefilter (`rt_alb`), for converted networks with prefiltered
+/// auxiliaries.
+const UNET_ALBEDO_STANDARD: &[u8] = include_bytes!("../../../models/oidn-rt_alb.safetensors");
+/// OIDN's standard normal prefilter (`rt_nrm`).
+const UNET_NORMAL_STANDARD: &[u8] = include_bytes!("../../../models/oidn-rt_nrm.safetensors");
+
 /// The spatial method: the U-Net file `path` or the compiled-in one, and with `prefilter`
 /// the compiled-in auxiliary prefilters and (without `path`) the clean-auxiliary model.
 pub fn spatial(
@@ -74,14 +80,34 @@ pub fn spatial(
 
 /// The temporal method: the converted U-Net in model file `path`.
 pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::TemporalDenoiser> {
+    use radn_nn::oidn_unet::prefilter::AuxPrefilter;
+    use radn_nn::oidn_unet::temporal::AuxSource;
+    use radn_nn::oidn_unet::temporal_store;
     use radn_nn::oidn_unet::window_denoiser::TemporalDenoiser;
-    use radn_nn::oidn_unet::{temporal_filter::TemporalFilter, temporal_store};
+    use radn_nn::oidn_unet::{filter::UnetFilter, store, temporal_filter::TemporalFilter};
     let net = temporal_store::load(path, &Device::flex())?;
+    let prefilter = match net.config().aux {
+        AuxSource::Rendered => None,
+        AuxSource::Prefiltered => {
+            let device = Device::flex();
+            let load = |bytes: &[u8], name: &str| -> Result<UnetFilter> {
+                Ok(UnetFilter::new(&store::load_bytes(
+                    bytes,
+                    Path::new(name),
+                    &device,
+                )?))
+            };
+            Some(AuxPrefilter::new(
+                load(UNET_ALBEDO_STANDARD, "<built-in rt_alb>")?,
+                load(UNET_NORMAL_STANDARD, "<built-in rt_nrm>")?,
+            ))
+        }
+    };
     Ok(TemporalDenoiser::new(
         TemporalFilter::new(&net),
-        net.config().color_confidence,
-        net.config().warp,
+        net.config(),
         path.display().to_string(),
+        prefilter,
     ))
 }
 

@@ -37,6 +37,7 @@ fn model_with(path: &Path, gate: f32, levels: Vec<usize>, warp: WarpSpace) {
             levels,
             color_confidence: Some(0.6),
             warp,
+            aux: Default::default(),
         },
         &device,
     )
@@ -242,5 +243,96 @@ fn feature_warping_gives_the_spatial_result_with_closed_gates_and_uses_the_windo
             .map(|(a, b)| (a - b).abs())
             .fold(0.0f32, f32::max);
         assert!(moved > 1e-3, "frame {frame}: open gates changed nothing");
+    }
+}
+
+/// The sample's frame `frame` (4 spp) as radn reads it.
+fn sample_frame(frame: usize) -> radn_core::io::frame::Frame {
+    use radn_core::io::frame::{FrameReader, Requirements};
+    use radn_core::io::mapping::ChannelMapping;
+    FrameReader::new(
+        ChannelMapping::builtin("cycles").unwrap(),
+        Requirements::DENOISE,
+    )
+    .read(Path::new(&format!(
+        "../../samples/cycles-sample/low/frame_{frame:04}.exr"
+    )))
+    .unwrap()
+    .0
+}
+
+/// `radn model convert --aux prefiltered` of OIDN's large clean-auxiliary network: with its
+/// gates closed it is exactly that network on the auxiliaries OIDN's standard prefilters
+/// cleaned (the spatial method's prefiltered path with `rt_alb` and `rt_nrm`), with no OIDN
+/// library; frames run band by band equal whole frames.
+#[test]
+fn prefiltered_auxiliaries_give_the_clean_auxiliary_unet_with_closed_gates_and_bands_equal_whole() {
+    use radn_core::run::denoiser::WindowDenoiser;
+    use radn_nn::oidn_unet::denoiser::SpatialDenoiser;
+    use radn_nn::oidn_unet::filter::UnetFilter;
+    let d = tempfile::tempdir().unwrap();
+    let net = d.path().join("prefiltered.st");
+    let r = Command::new(env!("CARGO_BIN_EXE_radn"))
+        .args(["--progress", "off", "model", "convert"])
+        .arg("../../models/oidn-rt_hdr_calb_cnrm_large.safetensors")
+        .args(["--aux", "prefiltered", "-o"])
+        .arg(&net)
+        .output()
+        .unwrap();
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    let run = |input: &str, out: &Path, frames: &str, bands: &str| {
+        let r = denoise_from(
+            input,
+            out,
+            frames,
+            &[
+                "--method",
+                "temporal",
+                "--model",
+                net.to_str().unwrap(),
+                "--output-precision",
+                "float",
+                "--bands",
+                bands,
+            ],
+        );
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        String::from_utf8_lossy(&r.stdout).into_owned()
+    };
+    let said = run(
+        "../../samples/cycles-sample/low/frame_####.exr",
+        &d.path().join("whole"),
+        "4-4",
+        "never",
+    );
+    assert!(said.contains("on rt_alb and rt_nrm"), "{said}");
+    let device = Device::flex();
+    let unet = |name: &str| {
+        UnetFilter::new(&store::load(Path::new(&format!("../../models/{name}")), &device).unwrap())
+    };
+    let spatial = SpatialDenoiser::prefiltered(
+        unet("oidn-rt_hdr_calb_cnrm_large.safetensors"),
+        unet("oidn-rt_alb.safetensors"),
+        unet("oidn-rt_nrm.safetensors"),
+    );
+    let f = sample_frame(4);
+    let expected = spatial.denoise(&[Some(&f)]).unwrap().color;
+    assert_eq!(beauty(&d.path().join("whole"), 4).data(), expected.data());
+
+    // band by band: the cleaned auxiliaries are made per band with the prefilters' halo
+    let input = common::tall(d.path());
+    run(&input, &d.path().join("tall-whole"), "4-5", "never");
+    run(&input, &d.path().join("tall-bands"), "4-5", "64");
+    for frame in [4, 5] {
+        let (a, b) = (
+            beauty(&d.path().join("tall-whole"), frame),
+            beauty(&d.path().join("tall-bands"), frame),
+        );
+        for (u, v) in a.data().iter().zip(b.data()) {
+            assert!(
+                (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                "whole {u}, banded {v}"
+            );
+        }
     }
 }

@@ -17,6 +17,7 @@ use radn_core::Plane;
 
 use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::filter::{UnetFilter, UnetImages};
+use crate::oidn_unet::prefilter::{cleaned_of, AuxPrefilter, CLEAN_AUX_CHANNELS};
 
 /// Pixels of one network tile when frames go band by band (`--bands`): bands are about as
 /// tall as a tile is wide, so that the overlap computed twice stays small, and the feature
@@ -27,7 +28,7 @@ pub const BAND_TILE_PIXELS: usize = 3 << 18;
 /// U-Nets that clean its auxiliaries first.
 pub struct SpatialDenoiser {
     beauty: UnetFilter,
-    prefilters: Option<(UnetFilter, UnetFilter)>,
+    prefilters: Option<AuxPrefilter>,
 }
 
 impl SpatialDenoiser {
@@ -43,7 +44,7 @@ impl SpatialDenoiser {
     pub fn prefiltered(beauty: UnetFilter, albedo: UnetFilter, normal: UnetFilter) -> Self {
         let scratch = beauty.scratch();
         Self {
-            prefilters: Some((
+            prefilters: Some(AuxPrefilter::new(
                 albedo.with_scratch(scratch.clone()),
                 normal.with_scratch(scratch),
             )),
@@ -56,13 +57,10 @@ impl SpatialDenoiser {
         let b = &self.beauty.config();
         match &self.prefilters {
             None => format!("{} (OIDN {})", b.weights, b.oidn_version),
-            Some((a, n)) => format!(
-                "{} on {} and {} (OIDN {})",
-                b.weights,
-                a.config().weights,
-                n.config().weights,
-                b.oidn_version
-            ),
+            Some(p) => {
+                let (a, n) = p.names();
+                format!("{} on {a} and {n} (OIDN {})", b.weights, b.oidn_version)
+            }
         }
     }
 }
@@ -97,9 +95,7 @@ impl SpatialDenoiser {
     /// the auxiliary prefilters read (none without them).
     fn reaches(&self) -> (usize, usize) {
         let beauty = self.beauty.config().layers.overlap();
-        let prefilter = self.prefilters.as_ref().map_or(0, |(a, n)| {
-            a.config().layers.overlap().max(n.config().layers.overlap())
-        });
+        let prefilter = self.prefilters.as_ref().map_or(0, AuxPrefilter::reach);
         (beauty, prefilter)
     }
 
@@ -120,26 +116,6 @@ impl SpatialDenoiser {
             path: path.to_path_buf(),
             detail: e.to_string(),
         })
-    }
-
-    /// Frame (or band) `f`'s albedo and normal cleaned by the prefilters (every row of `f`:
-    /// rows within the prefilters' reach of a band's cut are not yet the whole frame's).
-    fn cleaned(&self, f: &Frame, budget: Option<usize>) -> Result<(Option<Plane>, Option<Plane>)> {
-        let Some((a, n)) = &self.prefilters else {
-            return Ok((None, None));
-        };
-        let run = |net: &UnetFilter, p: &Plane, albedo: bool| {
-            let images = UnetImages {
-                color: None,
-                albedo: albedo.then_some(p),
-                normal: (!albedo).then_some(p),
-            };
-            Self::run(net, &images, 1.0, budget, &f.path)
-        };
-        Ok((
-            f.albedo.as_ref().map(|p| run(a, p, true)).transpose()?,
-            f.normal.as_ref().map(|p| run(n, p, false)).transpose()?,
-        ))
     }
 
     /// Rows `out` of frame `f` (all of `f`, or a band of a frame whose first row is on the
@@ -222,8 +198,8 @@ impl WindowDenoiser for SpatialDenoiser {
             .chain(f.aovs.iter().map(|a| &a.plane))
             .map(|p| self.beauty.autoexposure(p))
             .collect();
-        let aux = if self.prefilters.is_some() {
-            let (a, n) = self.cleaned(f, None)?;
+        let aux = if let Some(p) = &self.prefilters {
+            let (a, n) = p.clean(f, None)?;
             (a.map(Cow::Owned), n.map(Cow::Owned))
         } else {
             (
@@ -238,9 +214,6 @@ impl WindowDenoiser for SpatialDenoiser {
         Some(self)
     }
 }
-
-/// Channels of the prefiltered path's per-frame features: the cleaned albedo, then normal.
-const CLEAN_AUX_CHANNELS: usize = 6;
 
 impl BandDenoiser for SpatialDenoiser {
     fn band_rows(&self, _width: usize, limit: usize) -> usize {
@@ -270,20 +243,8 @@ impl BandDenoiser for SpatialDenoiser {
         out: Range<usize>,
         _stats: &FrameStats,
     ) -> Option<Plane> {
-        self.prefilters.as_ref()?;
-        let f = band.frame;
-        let mut features = Plane::zeros(f.width(), out.len(), CLEAN_AUX_CHANNELS);
-        // a frame without an auxiliary (which the beauty model refuses when denoising) keeps
-        // zeros; an error here is met again there, with the frame's path
-        if let Ok((Some(a), Some(n))) = self.cleaned(f, Some(BAND_TILE_PIXELS)) {
-            for (k, p) in [a, n].iter().enumerate() {
-                for c in 0..3 {
-                    let src = &p.channel(c)[out.start * f.width()..out.end * f.width()];
-                    features.channel_mut(3 * k + c).copy_from_slice(src);
-                }
-            }
-        }
-        Some(features)
+        let p = self.prefilters.as_ref()?;
+        Some(p.features(band.frame, out, Some(BAND_TILE_PIXELS)))
     }
 
     fn denoise_band(
@@ -298,18 +259,13 @@ impl BandDenoiser for SpatialDenoiser {
             .iter()
             .map(|bins| self.beauty.exposure_of(bins))
             .collect();
-        let aux = match (&self.prefilters, &f.features) {
-            (Some(_), Some(clean)) if f.albedo.is_some() && f.normal.is_some() => {
-                let part = |k: usize| {
-                    Plane::from_fn(f.width(), f.height(), 3, |x, y, c| {
-                        clean.get(x, y, 3 * k + c)
-                    })
-                };
-                (Some(Cow::Owned(part(0))), Some(Cow::Owned(part(1))))
-            }
+        let aux = match &self.prefilters {
             // the model's own message for a missing auxiliary
-            (Some(_), _) => (None, None),
-            (None, _) => (
+            Some(_) => {
+                let (a, n) = cleaned_of(f);
+                (a.map(Cow::Owned), n.map(Cow::Owned))
+            }
+            None => (
                 f.albedo.as_ref().map(Cow::Borrowed),
                 f.normal.as_ref().map(Cow::Borrowed),
             ),

@@ -12,6 +12,7 @@ pub mod filter;
 pub mod guide_filters;
 pub mod import;
 pub mod library;
+pub mod prefilter;
 pub mod store;
 pub mod temporal;
 pub mod temporal_filter;

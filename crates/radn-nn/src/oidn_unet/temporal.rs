@@ -32,6 +32,29 @@ pub struct TemporalConfig {
     /// Where the window is moved onto its centre frame at inference.
     #[serde(default)]
     pub warp: WarpSpace,
+    /// Which albedo and normal the U-Net reads.
+    #[serde(default, skip_serializing_if = "AuxSource::is_rendered")]
+    pub aux: AuxSource,
+}
+
+/// The albedo and normal a converted network reads with each frame of its window.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
+pub enum AuxSource {
+    /// Each frame's auxiliaries as rendered (what OIDN's noisy-auxiliary weights expect).
+    #[default]
+    Rendered,
+    /// Each frame's auxiliaries cleaned first by OIDN's standard albedo and normal prefilters
+    /// (`rt_alb`, `rt_nrm`), what the clean-auxiliary weights (`calb_cnrm`) expect: within
+    /// 0.1 dB of OIDN's large prefilters at well under half their cost.
+    Prefiltered,
+}
+
+impl AuxSource {
+    /// True for [`AuxSource::Rendered`] (the default, left out of model files).
+    pub fn is_rendered(&self) -> bool {
+        *self == AuxSource::Rendered
+    }
 }
 
 /// Where a converted network's window is moved onto its centre frame.
@@ -283,6 +306,7 @@ mod tests {
                 levels: vec![1, 2, 3, 4],
                 color_confidence: None,
                 warp: Default::default(),
+                aux: Default::default(),
             },
             &device,
         )
@@ -335,6 +359,7 @@ mod tests {
                     levels,
                     color_confidence: None,
                     warp: Default::default(),
+                    aux: Default::default(),
                 },
                 &device,
             )
@@ -344,6 +369,17 @@ mod tests {
         assert!(bad(4, vec![1]).contains("odd"));
         assert!(bad(5, vec![5]).contains("levels 0 to 4"));
         assert!(bad(5, vec![2, 1]).contains("in order"));
+        // model files written before the field existed read as rendered auxiliaries
+        let old: TemporalConfig = toml::from_str("frames = 5\nlevels = [1]\n").unwrap();
+        assert_eq!(old.aux, AuxSource::Rendered);
+        let cleaned = TemporalConfig {
+            aux: AuxSource::Prefiltered,
+            ..old
+        };
+        assert_eq!(
+            toml::from_str::<TemporalConfig>(&cleaned.to_toml()).unwrap(),
+            cleaned
+        );
     }
 
     #[cfg(feature = "autodiff")]
@@ -361,6 +397,7 @@ mod tests {
                 levels: vec![2, 4],
                 color_confidence: None,
                 warp: Default::default(),
+                aux: Default::default(),
             },
             &device,
         )

@@ -365,6 +365,7 @@ mod tests {
             levels,
             color_confidence: None,
             warp: Default::default(),
+            aux: Default::default(),
         };
         TemporalUnet::convert(unet, config, &device)
             .unwrap()

@@ -115,6 +115,7 @@ mod tests {
             levels: vec![0, 2],
             color_confidence: Some(0.6),
             warp: Default::default(),
+            aux: Default::default(),
         };
         let net = TemporalUnet::convert(unet, config.clone(), &device).unwrap();
         // open the gates so the blocks' weights matter

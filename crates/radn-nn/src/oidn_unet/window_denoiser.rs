@@ -17,14 +17,15 @@ use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::error::{Error, Result};
 use radn_core::io::frame::Frame;
 use radn_core::run::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
-use radn_core::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
+use radn_core::run::denoiser::{BandDenoiser, BandFeatures, Denoised, WindowDenoiser};
 use radn_core::Plane;
 
 use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
-use crate::oidn_unet::temporal::WarpSpace;
+use crate::oidn_unet::prefilter::{cleaned_of, AuxPrefilter, CLEAN_AUX_CHANNELS};
+use crate::oidn_unet::temporal::{AuxSource, TemporalConfig, WarpSpace};
 use crate::oidn_unet::temporal_filter::{FrameLevels, TemporalFilter};
 
 /// The network's tiles hold at most this many pixels (overlap included) unless set: a 1080p
@@ -46,27 +47,35 @@ pub struct TemporalDenoiser {
     name: String,
     tile_pixels: usize,
     warp: WarpSpace,
+    prefilter: Option<AuxPrefilter>,
     cache: Mutex<LevelCache>,
 }
 
 impl TemporalDenoiser {
     /// Runs `filter` on windows aligned with radn's default alignment (the training tiles')
-    /// and the colour term `color_confidence` (the model's), moved onto the centre in `warp`
-    /// (the model's); `name` labels the model in the run's summary.
+    /// and the model's colour term, moved onto the centre as the model's `config` says; with
+    /// `prefilter` (required by, and only by, models whose auxiliaries are prefiltered) every
+    /// frame's albedo and normal are cleaned first. `name` labels the model in the summary.
     pub fn new(
         filter: TemporalFilter,
-        color_confidence: Option<f32>,
-        warp: WarpSpace,
+        config: &TemporalConfig,
         name: String,
+        prefilter: Option<AuxPrefilter>,
     ) -> Self {
+        assert_eq!(
+            config.aux == AuxSource::Prefiltered,
+            prefilter.is_some(),
+            "a prefiltered model needs its prefilters, and only it"
+        );
         let mut align = AlignParams::default();
-        align.confidence.color = color_confidence;
+        align.confidence.color = config.color_confidence;
         Self {
             filter,
             align,
             name,
             tile_pixels: DEFAULT_TILE_PIXELS,
-            warp,
+            warp: config.warp,
+            prefilter,
             cache: Mutex::default(),
         }
     }
@@ -82,9 +91,13 @@ impl TemporalDenoiser {
     pub fn summary(&self) -> String {
         let c = self.filter.unet().config();
         format!(
-            "{} ({} over {} frames, OIDN {}, {} warped)",
+            "{} ({}{} over {} frames, OIDN {}, {} warped)",
             self.name,
             c.weights,
+            self.prefilter.as_ref().map_or(String::new(), |p| {
+                let (a, n) = p.names();
+                format!(" on {a} and {n}")
+            }),
             self.filter.frames(),
             c.oidn_version,
             match self.warp {
@@ -259,6 +272,21 @@ impl TemporalDenoiser {
     }
 }
 
+/// Frame (or band) `f` with the albedo and normal its features hold cleaned
+/// ([`AuxPrefilter::features`], made once per frame by the sequence job), or cleaned now where
+/// it has no features (a window given frames directly).
+fn with_clean_aux(f: &Frame, prefilter: &AuxPrefilter) -> Result<Frame> {
+    let (albedo, normal) = match cleaned_of(f) {
+        (Some(a), Some(n)) => (Some(a), Some(n)),
+        _ => prefilter.clean(f, None)?,
+    };
+    Ok(Frame {
+        albedo,
+        normal,
+        ..f.clone()
+    })
+}
+
 /// The encoder levels of the frames the latest windows read, the least recently used first.
 #[derive(Default)]
 struct LevelCache {
@@ -289,7 +317,30 @@ impl WindowDenoiser for TemporalDenoiser {
         self.filter.frames() / 2
     }
 
+    fn frame_features(&self, frame: &Frame) -> Option<Plane> {
+        let p = self.prefilter.as_ref()?;
+        Some(p.features(frame, 0..frame.height(), None))
+    }
+
+    fn has_frame_features(&self) -> bool {
+        self.prefilter.is_some()
+    }
+
     fn denoise(&self, window: &[Option<&Frame>]) -> Result<Denoised> {
+        // with prefiltered auxiliaries the window is made of copies that hold them
+        let cleaned: Vec<Option<Frame>> = match &self.prefilter {
+            Some(p) => window
+                .iter()
+                .map(|f| f.map(|f| with_clean_aux(f, p)).transpose())
+                .collect::<Result<_>>()?,
+            None => Vec::new(),
+        };
+        let window: Vec<Option<&Frame>> = if self.prefilter.is_some() {
+            cleaned.iter().map(Option::as_ref).collect()
+        } else {
+            window.to_vec()
+        };
+        let window = window.as_slice();
         let r = self.radius();
         let centre = window[r].expect("the centre frame is present");
         let win = align_window(window, &self.align);
@@ -329,15 +380,56 @@ impl BandDenoiser for TemporalDenoiser {
         (self.filter.reach() + ALIGNMENT_EDGE_ROWS).next_multiple_of(ALIGNMENT)
     }
 
+    fn band_features(&self) -> Option<BandFeatures> {
+        // prefiltered auxiliaries are cleaned band by band first, with the prefilters' halo
+        self.prefilter.as_ref().map(|p| BandFeatures {
+            channels: CLEAN_AUX_CHANNELS,
+            halo: p.reach().next_multiple_of(ALIGNMENT),
+        })
+    }
+
+    fn frame_band_features(
+        &self,
+        band: FrameBand,
+        out: Range<usize>,
+        _stats: &FrameStats,
+    ) -> Option<Plane> {
+        let p = self.prefilter.as_ref()?;
+        Some(p.features(band.frame, out, Some(self.tile_pixels)))
+    }
+
     fn denoise_band(
         &self,
         window: &[Option<FrameBand>],
         out: Range<usize>,
         centre: &FrameStats,
     ) -> Result<Denoised> {
-        // bands warp images in either warp space (see `banded`)
+        // bands warp images in either warp space (see `banded`); with prefiltered auxiliaries
+        // each band is a copy holding them
+        let cleaned: Vec<Option<Frame>> = match &self.prefilter {
+            Some(p) => window
+                .iter()
+                .map(|b| b.map(|b| with_clean_aux(b.frame, p)).transpose())
+                .collect::<Result<_>>()?,
+            None => Vec::new(),
+        };
+        let window: Vec<Option<FrameBand>> = if self.prefilter.is_some() {
+            window
+                .iter()
+                .zip(&cleaned)
+                .map(|(b, c)| {
+                    b.zip(c.as_ref()).map(|(b, c)| FrameBand {
+                        frame: c,
+                        y0: b.y0,
+                        full_height: b.full_height,
+                    })
+                })
+                .collect()
+        } else {
+            window.to_vec()
+        };
         let band = window[self.radius()].expect("the centre band is present");
-        let win = align_bands(window, &self.align);
+        let win = align_bands(&window, &self.align);
         // every band at the exposure of the whole centre frame's planes
         let scales: Vec<f32> = centre
             .autoexposure

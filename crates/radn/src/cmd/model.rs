@@ -12,7 +12,7 @@ use crate::input::{check_threshold, tune_pairs};
 #[derive(clap::Args)]
 #[command(args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 pub struct Args {
-    /// Import one of OIDN's trained U-Nets instead.
+    /// Import one of OIDN's trained U-Nets, or convert one, instead.
     #[command(subcommand)]
     pub action: Option<Action>,
     /// The model file (SafeTensors, as `radn train` or `radn model import-oidn` writes).
@@ -33,6 +33,74 @@ pub enum Action {
     /// Read one of OIDN's trained U-Nets from an OIDN 2.x core library into a radn model file
     /// (runnable by `radn denoise --method spatial --model FILE`).
     ImportOidn(ImportArgs),
+    /// Convert an imported U-Net into the paper's spatio-temporal network: Robust Average
+    /// blocks behind closed gates, so that it is the per-frame U-Net until `radn train` opens
+    /// them (runnable by `radn denoise --method temporal --model FILE`).
+    Convert(ConvertArgs),
+}
+
+/// Arguments of `radn model convert`.
+#[derive(clap::Args)]
+pub struct ConvertArgs {
+    /// The imported U-Net (`radn model import-oidn` writes it).
+    pub unet: PathBuf,
+    /// Encoder levels that get a block (0: the input's resolution, 4: the bottleneck).
+    #[arg(long, value_delimiter = ',', default_value = "0,1,2,3")]
+    pub levels: Vec<usize>,
+    /// Frames per window (odd).
+    #[arg(long, default_value_t = 5)]
+    pub frames: usize,
+    /// Alignment's colour tolerance for the windows (none: the colour term is left out).
+    #[arg(long, value_name = "TOLERANCE")]
+    pub color_confidence: Option<f32>,
+    /// Where the window is moved onto the centre: images, or each frame's encoder levels.
+    #[arg(long, default_value = "images", value_parser = ["images", "features"])]
+    pub warp: String,
+    /// Auxiliaries the U-Net reads: as rendered, or cleaned first by OIDN's standard albedo
+    /// and normal prefilters (for clean-auxiliary weights such as rt_hdr_calb_cnrm_large).
+    #[arg(long, default_value = "rendered", value_parser = ["rendered", "prefiltered"])]
+    pub aux: String,
+    /// The model file to write (a new file: nothing is replaced).
+    #[arg(short, long, value_name = "FILE")]
+    pub out: PathBuf,
+}
+
+/// Writes the converted network of an imported U-Net.
+fn convert(a: ConvertArgs) -> Result<()> {
+    use radn_nn::oidn_unet::temporal::{AuxSource, TemporalConfig, TemporalUnet, WarpSpace};
+    if a.out.exists() {
+        bail!(
+            "'{}' exists; radn model convert writes a new file",
+            a.out.display()
+        );
+    }
+    let device = ComputeDevice::Cpu.open()?;
+    let unet = radn_nn::oidn_unet::store::load(&a.unet, &device)?;
+    let config = TemporalConfig {
+        frames: a.frames,
+        levels: a.levels,
+        color_confidence: a.color_confidence,
+        warp: match a.warp.as_str() {
+            "features" => WarpSpace::Features,
+            _ => WarpSpace::Images,
+        },
+        aux: match a.aux.as_str() {
+            "prefiltered" => AuxSource::Prefiltered,
+            _ => AuxSource::Rendered,
+        },
+    };
+    let net = TemporalUnet::convert(unet, config, &device)
+        .with_context(|| format!("converting '{}'", a.unet.display()))?;
+    radn_nn::oidn_unet::temporal_store::save(&net, &a.out)
+        .with_context(|| format!("writing '{}'", a.out.display()))?;
+    println!(
+        "{}: '{}' converted, blocks at levels {:?} over {} frames, gates closed",
+        a.out.display(),
+        net.unet.config().weights,
+        net.config().levels,
+        net.config().frames
+    );
+    Ok(())
 }
 
 /// Arguments of `radn model import-oidn`.
@@ -95,8 +163,10 @@ fn import_oidn(a: ImportArgs) -> Result<()> {
 
 /// Prints the network and recipe, or writes the copy with its recipe tuned.
 pub fn run(a: Args) -> Result<()> {
-    if let Some(Action::ImportOidn(i)) = a.action {
-        return import_oidn(i);
+    match a.action {
+        Some(Action::ImportOidn(i)) => return import_oidn(i),
+        Some(Action::Convert(c)) => return convert(c),
+        None => {}
     }
     let file = a.file.expect("clap requires a file without a subcommand");
     let device = ComputeDevice::Cpu.open()?;
