@@ -47,6 +47,17 @@ const UNET_ALBEDO_STANDARD: &[u8] = include_bytes!("../../../models/oidn-rt_alb.
 /// OIDN's standard normal prefilter (`rt_nrm`).
 const UNET_NORMAL_STANDARD: &[u8] = include_bytes!("../../../models/oidn-rt_nrm.safetensors");
 
+/// One of the compiled-in OIDN U-Nets (`bytes`), named `<built-in NAME>` in messages.
+fn builtin_unet(bytes: &[u8], name: &str) -> Result<radn_nn::oidn_unet::filter::UnetFilter> {
+    Ok(radn_nn::oidn_unet::filter::UnetFilter::new(
+        &radn_nn::oidn_unet::store::load_bytes(
+            bytes,
+            Path::new(&format!("<built-in {name}>")),
+            &Device::flex(),
+        )?,
+    ))
+}
+
 /// The spatial method: the U-Net file `path` or the compiled-in one, and with `prefilter`
 /// the compiled-in auxiliary prefilters and (without `path`) the clean-auxiliary model.
 pub fn spatial(
@@ -55,23 +66,16 @@ pub fn spatial(
 ) -> Result<radn_nn::oidn_unet::denoiser::SpatialDenoiser> {
     use radn_nn::oidn_unet::{denoiser::SpatialDenoiser, filter::UnetFilter, store};
     let device = Device::flex();
-    let builtin = |bytes: &[u8], name: &str| -> Result<UnetFilter> {
-        Ok(UnetFilter::new(&store::load_bytes(
-            bytes,
-            Path::new(name),
-            &device,
-        )?))
-    };
     let beauty = match path {
         Some(p) => UnetFilter::new(&store::load(p, &device)?),
-        None if prefilter => builtin(UNET_BEAUTY_CLEAN, "<built-in rt_hdr_calb_cnrm_large>")?,
-        None => builtin(UNET_BEAUTY, "<built-in rt_hdr_alb_nrm>")?,
+        None if prefilter => builtin_unet(UNET_BEAUTY_CLEAN, "rt_hdr_calb_cnrm_large")?,
+        None => builtin_unet(UNET_BEAUTY, "rt_hdr_alb_nrm")?,
     };
     Ok(if prefilter {
         SpatialDenoiser::prefiltered(
             beauty,
-            builtin(UNET_ALBEDO, "<built-in rt_alb_large>")?,
-            builtin(UNET_NORMAL, "<built-in rt_nrm_large>")?,
+            builtin_unet(UNET_ALBEDO, "rt_alb_large")?,
+            builtin_unet(UNET_NORMAL, "rt_nrm_large")?,
         )
     } else {
         SpatialDenoiser::new(beauty)
@@ -82,26 +86,16 @@ pub fn spatial(
 pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::TemporalDenoiser> {
     use radn_nn::oidn_unet::prefilter::AuxPrefilter;
     use radn_nn::oidn_unet::temporal::AuxSource;
+    use radn_nn::oidn_unet::temporal_filter::TemporalFilter;
     use radn_nn::oidn_unet::temporal_store;
     use radn_nn::oidn_unet::window_denoiser::TemporalDenoiser;
-    use radn_nn::oidn_unet::{filter::UnetFilter, store, temporal_filter::TemporalFilter};
     let net = temporal_store::load(path, &Device::flex())?;
     let prefilter = match net.config().aux {
         AuxSource::Rendered => None,
-        AuxSource::Prefiltered => {
-            let device = Device::flex();
-            let load = |bytes: &[u8], name: &str| -> Result<UnetFilter> {
-                Ok(UnetFilter::new(&store::load_bytes(
-                    bytes,
-                    Path::new(name),
-                    &device,
-                )?))
-            };
-            Some(AuxPrefilter::new(
-                load(UNET_ALBEDO_STANDARD, "<built-in rt_alb>")?,
-                load(UNET_NORMAL_STANDARD, "<built-in rt_nrm>")?,
-            ))
-        }
+        AuxSource::Prefiltered => Some(AuxPrefilter::new(
+            builtin_unet(UNET_ALBEDO_STANDARD, "rt_alb")?,
+            builtin_unet(UNET_NORMAL_STANDARD, "rt_nrm")?,
+        )),
     };
     Ok(TemporalDenoiser::new(
         TemporalFilter::new(&net),
@@ -115,15 +109,7 @@ pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::Temp
 /// path where no OIDN library is installed.
 pub fn builtin_guides() -> Result<OidnGuides> {
     use radn_nn::oidn_unet::guide_filters::{BeautyModels, BuiltinGuideFilters};
-    use radn_nn::oidn_unet::{filter::UnetFilter, store};
-    let device = Device::flex();
-    let net = |bytes: &[u8], name: &str| -> Result<UnetFilter> {
-        Ok(UnetFilter::new(&store::load_bytes(
-            bytes,
-            Path::new(&format!("<built-in {name}>")),
-            &device,
-        )?))
-    };
+    let net = builtin_unet;
     let filters = BuiltinGuideFilters::new(
         BeautyModels {
             plain: net(UNET_BEAUTY_PLAIN, "rt_hdr")?,
