@@ -25,13 +25,16 @@ use radn_core::io::frame::{FrameReader, Requirements};
 use radn_core::io::mapping::ChannelMapping;
 use radn_core::io::sequence::{scene_folders, SequencePattern};
 use radn_core::run::window::WindowReader;
-use serde::{Deserialize, Serialize};
 
 use radn_nn::error::{NnError, Result};
 use radn_nn::infer::align_params_loosened;
 use radn_nn::infer::input::{color_values, features, FeatureScales};
 use radn_nn::infer::schedule::NoiseSchedule;
 use radn_nn::model::config::INPUT_CHANNELS;
+use radn_nn::oidn_unet::prefilter::AuxPrefilter;
+
+use crate::tile_manifest::default_pseudo_level;
+pub use crate::tile_manifest::{Manifest, DEFAULT_PSEUDO_LEVEL};
 
 /// Levels a network input can come from, least noisy first.
 pub const INPUT_LEVELS: [&str; 3] = ["high", "half", "low"];
@@ -88,6 +91,10 @@ pub struct PrepareOptions {
     /// The noise schedule that loosening follows (the recipe's, so training and inference
     /// loosen alike).
     pub schedule: NoiseSchedule,
+    /// OIDN's albedo and normal prefilters, to clean every frame's auxiliaries before its
+    /// windows are aligned, as a converted clean-auxiliary network reads them at inference;
+    /// `None`: the auxiliaries as rendered.
+    pub aux_prefilter: Option<std::sync::Arc<AuxPrefilter>>,
 }
 
 impl PrepareOptions {
@@ -108,67 +115,9 @@ impl PrepareOptions {
             resampling: Resampling::Bilinear,
             loosen_sampled_terms: None,
             schedule: radn_nn::recipe::Recipe::for_kind(false).schedule,
+            aux_prefilter: None,
         }
     }
-}
-
-/// The default pseudo-reference level (made by `radn pseudoref`).
-pub const DEFAULT_PSEUDO_LEVEL: &str = "pseudo";
-
-fn default_pseudo_level() -> String {
-    DEFAULT_PSEUDO_LEVEL.to_string()
-}
-
-/// The dataset's description, stored as `manifest.json`.
-#[derive(Clone, Debug, Serialize, Deserialize, PartialEq)]
-pub struct Manifest {
-    /// Format version.
-    pub format: u32,
-    /// Tile side.
-    pub tile: usize,
-    /// Frames per window.
-    pub frames: usize,
-    /// Channels of the features per frame.
-    pub feature_channels: usize,
-    /// Input levels, in record order.
-    pub input_levels: Vec<String>,
-    /// Target levels, in record order.
-    pub target_levels: Vec<String>,
-    /// Number of records.
-    pub records: usize,
-    /// Records per shard file.
-    pub records_per_shard: usize,
-    /// Bytes per record.
-    pub record_bytes: usize,
-    /// Seed of the tile positions.
-    pub seed: u64,
-    /// Source scenes.
-    pub scenes: Vec<String>,
-    /// Records with a pseudo-reference target.
-    pub with_pseudo: usize,
-    /// The level folder the pseudo-references were read from (`pseudo` or `oidn`).
-    #[serde(default = "default_pseudo_level")]
-    pub pseudo_level: String,
-    /// Where the stored guides came from (`oidn`, `denoised` or a layer name); none in tile sets
-    /// without guides (all before format 3).
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub guide: Option<String>,
-    /// How OIDN made the `oidn` guides ([`PrepareOptions::oidn`]); absent: OIDN's final-frame
-    /// mode (every tile set before it was recorded).
-    #[serde(default, skip_serializing_if = "OidnSettings::is_default")]
-    pub oidn: OidnSettings,
-    /// The guide term's tolerance the windows were aligned with
-    /// ([`PrepareOptions::guide_confidence`]); none without it.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub guide_confidence: Option<f32>,
-    /// How the windows' side frames were sampled ([`PrepareOptions::resampling`]); absent in
-    /// tile sets from before it: bilinear.
-    #[serde(default, skip_serializing_if = "Resampling::is_bilinear")]
-    pub resampling: Resampling,
-    /// The most the sampled-buffer terms were loosened by the noise level
-    /// ([`PrepareOptions::loosen_sampled_terms`]); absent: strict.
-    #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub loosen_sampled_terms: Option<f32>,
 }
 
 /// One training tile.
@@ -269,10 +218,19 @@ pub fn prepare(
             })?);
         }
         let pseudo = level_files(&opts.pseudo_level)?;
+        let clean_aux = |f: &mut radn_core::io::frame::Frame| -> radn_core::error::Result<()> {
+            if let Some(p) = &opts.aux_prefilter {
+                let (albedo, normal) = p.clean(f, None)?;
+                f.albedo = albedo.or(f.albedo.take());
+                f.normal = normal.or(f.normal.take());
+            }
+            Ok(())
+        };
         let mut inputs: Vec<WindowReader> = input_files
             .iter()
             .map(|f| {
-                let w = WindowReader::new(&input_reader, f, opts.frames / 2);
+                let w =
+                    WindowReader::new(&input_reader, f, opts.frames / 2).with_transform(&clean_aux);
                 match &oidn {
                     // each input render's own OIDN result
                     Some(g) => w.with_guides(JobGuides::Oidn {
@@ -393,6 +351,7 @@ pub fn prepare(
         guide_confidence: align.confidence.guide,
         resampling: opts.resampling,
         loosen_sampled_terms: opts.loosen_sampled_terms,
+        aux_prefilters: opts.aux_prefilter.as_ref().map(|p| p.names()),
     };
     let text = serde_json::to_string_pretty(&manifest).expect("manifest serialises");
     radn_core::io::output::write_bytes_atomically(&out.join("manifest.json"), text.as_bytes())?;

@@ -18,6 +18,7 @@ pub mod dataset;
 pub mod layer_stats;
 pub mod loss;
 pub mod objective;
+pub mod tile_manifest;
 pub mod trainer;
 pub mod unet_finetune;
 pub mod vgg;

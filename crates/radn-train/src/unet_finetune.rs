@@ -251,6 +251,13 @@ impl Finetune {
                 config.crop, train.manifest.tile
             )));
         }
+        if train.manifest.aux_prefilters != val.manifest.aux_prefilters {
+            return Err(NnError::Config(format!(
+                "the training and validation tiles hold different auxiliaries ({:?} and {:?}): \
+                 prepare both with the same --aux",
+                train.manifest.aux_prefilters, val.manifest.aux_prefilters
+            )));
+        }
         let unet = store::load(&base.join(&config.init), device)?;
         // the blocks' initial weights from the seed (a resumed run then loads its own)
         device.seed(config.seed);
@@ -259,8 +266,11 @@ impl Finetune {
             levels: config.levels.clone(),
             color_confidence: config.color_confidence,
             warp: config.warp,
-            // the tiles hold the auxiliaries as rendered
-            aux: AuxSource::Rendered,
+            // as the tiles hold them, so inference cleans them as they were cleaned
+            aux: match train.manifest.aux_prefilters {
+                Some(_) => AuxSource::Prefiltered,
+                None => AuxSource::Rendered,
+            },
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;

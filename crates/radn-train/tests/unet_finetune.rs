@@ -114,3 +114,122 @@ fn bad_settings_are_refused_with_a_reason() {
     assert!(bad(&format!("{base}crop = 40\n")).contains("multiple of 16"));
     assert!(bad(&format!("{base}crop = 32\nfoo = 1\n")).contains("foo"));
 }
+
+/// OIDN's standard albedo and normal prefilters, from the model files radn compiles in.
+fn standard_prefilters() -> radn_nn::oidn_unet::prefilter::AuxPrefilter {
+    use radn_nn::oidn_unet::{filter::UnetFilter, store};
+    let models = Path::new(env!("CARGO_MANIFEST_DIR")).join("../../models");
+    let load =
+        |name: &str| UnetFilter::new(&store::load(&models.join(name), &Device::flex()).unwrap());
+    radn_nn::oidn_unet::prefilter::AuxPrefilter::new(
+        load("oidn-rt_alb.safetensors"),
+        load("oidn-rt_nrm.safetensors"),
+    )
+}
+
+#[test]
+fn prefiltered_tiles_hold_each_frames_cleaned_auxiliaries_and_convert_a_clean_auxiliary_network() {
+    use radn_core::io::frame::{FrameReader, Requirements};
+    use radn_core::io::mapping::ChannelMapping;
+    use radn_train::dataset::TileDataset;
+    let d = tempfile::tempdir().unwrap();
+    let prefilter = std::sync::Arc::new(standard_prefilters());
+    let with = |seed| PrepareOptions {
+        aux_prefilter: Some(prefilter.clone()),
+        ..PrepareOptions::new(32, 1, seed)
+    };
+    prepare(
+        &sample(),
+        &d.path().join("rendered"),
+        &PrepareOptions::new(32, 1, 1),
+        |_, _| {},
+    )
+    .unwrap();
+    prepare(&sample(), &d.path().join("train"), &with(1), |_, _| {}).unwrap();
+    let rendered = TileDataset::open(&d.path().join("rendered")).unwrap();
+    let cleaned = TileDataset::open(&d.path().join("train")).unwrap();
+    assert_eq!(cleaned.manifest.aux_prefilters, Some(prefilter.names()));
+    assert_eq!(rendered.manifest.aux_prefilters, None);
+
+    // record k: the window around frame k of the sample, the same tile position in both sets;
+    // the centre frame (slot 2 of 5) is not warped, so its features are the frame's own
+    let frame_files: Vec<PathBuf> = {
+        let mut v: Vec<PathBuf> = std::fs::read_dir(sample().join("low"))
+            .unwrap()
+            .map(|e| e.unwrap().path())
+            .filter(|p| p.extension().is_some_and(|e| e == "exr"))
+            .collect();
+        v.sort();
+        v
+    };
+    let (low, s, c) = (2, 32, 11);
+    let plane = |tile: &[f32], channel: usize| -> Vec<f32> {
+        tile[(2 * c + channel) * s * s..(2 * c + channel + 1) * s * s].to_vec()
+    };
+    for k in [0, 4, 8] {
+        let (a, b) = (rendered.get(k).unwrap(), cleaned.get(k).unwrap());
+        // the beauty is untouched: it locates the tile in the frame
+        assert_eq!(plane(&a.features[low], 0), plane(&b.features[low], 0));
+        assert_ne!(plane(&a.features[low], 3), plane(&b.features[low], 3));
+        let names = radn_core::io::exr_file::ExrFile::read_rows(&frame_files[k], 0..1)
+            .unwrap()
+            .channel_names();
+        let mapping = ChannelMapping::detect(&names).unwrap();
+        let (frame, _) = FrameReader::new(mapping, Requirements::DENOISE)
+            .read(&frame_files[k])
+            .unwrap();
+        let (albedo, normal) = prefilter.clean(&frame, None).unwrap();
+        let (albedo, normal) = (albedo.unwrap(), normal.unwrap());
+        let log = plane(&b.features[low], 0);
+        let (w, h) = (frame.width(), frame.height());
+        let at = (0..=h - s)
+            .flat_map(|y| (0..=w - s).map(move |x| (x, y)))
+            .find(|&(x, y)| {
+                (0..s).all(|j| {
+                    (0..s).all(|i| {
+                        let v = frame.color.get(x + i, y + j, 0).max(0.0).ln_1p();
+                        (v - log[j * s + i]).abs() <= 2e-3 * v.abs().max(1e-2)
+                    })
+                })
+            })
+            .expect("the tile's beauty is found in its centre frame");
+        for (ch, buffer, lo, hi) in [(3, &albedo, 0.0, 2.0), (6, &normal, -1.0, 1.0)] {
+            for k3 in 0..3 {
+                let got = plane(&b.features[low], ch + k3);
+                let worst = (0..s * s)
+                    .map(|p| {
+                        let want = buffer.get(at.0 + p % s, at.1 + p / s, k3).clamp(lo, hi);
+                        (got[p] - want).abs()
+                    })
+                    .fold(0.0f32, f32::max);
+                // stored as half floats
+                assert!(worst <= 2e-3, "frame {k}, channel {}: {worst}", ch + k3);
+            }
+        }
+    }
+
+    // a fine-tune reads them as a clean-auxiliary network does, and refuses mixed sets
+    prepare(&sample(), &d.path().join("val"), &with(2), |_, _| {}).unwrap();
+    let cfg = FinetuneConfig::parse(&format!(
+        "network = \"oidn-temporal\"\ninit = \"{}/../../models/oidn-rt_hdr_calb_cnrm_large.safetensors\"\n\
+         train = \"train\"\nval = \"val\"\nlevels = [0]\nbatch = 1\ncrop = 32\nsteps = 1\nlr = 1e-4\n\
+         seed = 3\nvalidate_every = 1\nval_tiles = 1\n",
+        env!("CARGO_MANIFEST_DIR")
+    ))
+    .unwrap();
+    let device = Device::flex().autodiff();
+    let run = Finetune::new(cfg.clone(), d.path(), &d.path().join("run"), false, &device).unwrap();
+    assert_eq!(
+        run.net().config().aux,
+        radn_nn::oidn_unet::temporal::AuxSource::Prefiltered
+    );
+    let mixed = FinetuneConfig {
+        val: "rendered".into(),
+        ..cfg
+    };
+    let err = Finetune::new(mixed, d.path(), &d.path().join("run2"), false, &device)
+        .err()
+        .expect("mixed auxiliaries are refused")
+        .to_string();
+    assert!(err.contains("--aux"), "{err}");
+}

@@ -82,9 +82,17 @@ pub fn spatial(
     })
 }
 
+/// OIDN's standard albedo and normal prefilters (compiled in), which clean the auxiliaries of
+/// converted clean-auxiliary networks, at inference and in their training tiles.
+pub fn aux_prefilter() -> Result<radn_nn::oidn_unet::prefilter::AuxPrefilter> {
+    Ok(radn_nn::oidn_unet::prefilter::AuxPrefilter::new(
+        builtin_unet(UNET_ALBEDO_STANDARD, "rt_alb")?,
+        builtin_unet(UNET_NORMAL_STANDARD, "rt_nrm")?,
+    ))
+}
+
 /// The temporal method: the converted U-Net in model file `path`.
 pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::TemporalDenoiser> {
-    use radn_nn::oidn_unet::prefilter::AuxPrefilter;
     use radn_nn::oidn_unet::temporal::AuxSource;
     use radn_nn::oidn_unet::temporal_filter::TemporalFilter;
     use radn_nn::oidn_unet::temporal_store;
@@ -92,10 +100,7 @@ pub fn temporal(path: &Path) -> Result<radn_nn::oidn_unet::window_denoiser::Temp
     let net = temporal_store::load(path, &Device::flex())?;
     let prefilter = match net.config().aux {
         AuxSource::Rendered => None,
-        AuxSource::Prefiltered => Some(AuxPrefilter::new(
-            builtin_unet(UNET_ALBEDO_STANDARD, "rt_alb")?,
-            builtin_unet(UNET_NORMAL_STANDARD, "rt_nrm")?,
-        )),
+        AuxSource::Prefiltered => Some(aux_prefilter()?),
     };
     Ok(TemporalDenoiser::new(
         TemporalFilter::new(&net),

@@ -35,7 +35,12 @@ pub struct WindowReader<'a> {
     size: Option<(usize, usize)>,
     repaired: usize,
     motion: Option<SequenceMotion>,
+    transform: Option<&'a FrameTransform<'a>>,
 }
+
+/// A change made to every frame as it is decoded, before its guide and motion (e.g. its
+/// auxiliaries replaced by cleaned ones); its error names the frame.
+pub type FrameTransform<'a> = dyn Fn(&mut Frame) -> Result<()> + Sync + 'a;
 
 impl<'a> WindowReader<'a> {
     /// Windows of `radius` frames on each side over the sequence `files`, read by `reader`.
@@ -51,7 +56,15 @@ impl<'a> WindowReader<'a> {
             size: None,
             repaired: 0,
             motion: None,
+            transform: None,
         }
+    }
+
+    /// Runs `transform` on each frame as it is decoded, before its guide is computed and its
+    /// motion estimated.
+    pub fn with_transform(mut self, transform: &'a FrameTransform<'a>) -> Self {
+        self.transform = Some(transform);
+        self
     }
 
     /// Aligns with `motion`'s source: the renderer's vectors, or motion estimated from the
@@ -117,6 +130,9 @@ impl<'a> WindowReader<'a> {
                     super::timing::timed("decoding", || self.reader.read(&self.files[k]))?;
                 let (w, h) = *self.size.get_or_insert((frame.width(), frame.height()));
                 frame.ensure_size(w, h)?;
+                if let Some(t) = self.transform {
+                    t(&mut frame)?;
+                }
                 if let JobGuides::Oidn { guides, originals } = &self.guides {
                     let original = &originals[k];
                     frame.guide = Some(if *original == self.files[k] {

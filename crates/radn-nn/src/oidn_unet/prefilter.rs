@@ -110,3 +110,10 @@ pub fn cleaned_of(f: &Frame) -> (Option<Plane>, Option<Plane>) {
         _ => (None, None),
     }
 }
+
+impl std::fmt::Debug for AuxPrefilter {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        let (albedo, normal) = self.names();
+        write!(f, "AuxPrefilter({albedo}, {normal})")
+    }
+}

@@ -61,6 +61,20 @@ pub struct Args {
     /// this guide; `off`, the default, as every shipped model's tiles were made: strict).
     #[arg(long, value_name = "auto|off|K", default_value = "off")]
     pub loosen_confidence: Setting<Positive>,
+    /// The albedo and normal the tiles hold: as rendered, or cleaned first by OIDN's
+    /// standard prefilters (compiled in), for fine-tuning a converted clean-auxiliary U-Net
+    /// (`radn model convert … --aux prefiltered`), which reads them so at inference.
+    #[arg(long, value_enum, default_value_t = TileAux::Rendered)]
+    pub aux: TileAux,
+}
+
+/// The auxiliaries `radn prepare` stores.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, clap::ValueEnum)]
+pub enum TileAux {
+    /// As rendered.
+    Rendered,
+    /// Cleaned by OIDN's `rt_alb` and `rt_nrm`, each frame whole, before alignment.
+    Prefiltered,
 }
 
 /// Cuts the tiles.
@@ -98,6 +112,10 @@ pub fn run(a: Args) -> Result<()> {
         resampling: a.resampling.into(),
         loosen_sampled_terms: loosen,
         schedule: recipe.schedule,
+        aux_prefilter: match a.aux {
+            TileAux::Rendered => None,
+            TileAux::Prefiltered => Some(std::sync::Arc::new(crate::model::aux_prefilter()?)),
+        },
         ..PrepareOptions::new(a.tile, a.tiles_per_window, a.seed)
     };
     let m = prepare(&a.data, &a.out, &opts, |done, _| {
