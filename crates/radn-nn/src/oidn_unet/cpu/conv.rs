@@ -270,7 +270,7 @@ impl Task<'_> {
     }
 
     /// The same task for its blocks from `ob + k` (`k` even), written where those go.
-    pub(super) fn from_block(&self, k: usize) -> Self {
+    pub(super) fn with_blocks_from(&self, k: usize) -> Self {
         Self {
             ob: self.ob + k,
             dst_row: self.dst_row.wrapping_add(k * self.bs),

@@ -51,7 +51,7 @@ impl Task<'_> {
                     x += 1;
                 }
                 if nb == 3 {
-                    self.from_block(2).columns_avx2(x0, x1, 1);
+                    self.with_blocks_from(2).columns_avx2(x0, x1, 1);
                 }
             }
             _ => self.columns_avx2(x0, x1, nb),
