@@ -2,7 +2,7 @@
 //! micro-kernel keeps a few blocks of 8 output channels for a row of neighbouring pixels in
 //! vector registers and, for every input channel and tap, loads the blocks' weight vectors once
 //! and broadcasts each pixel's input value against them. The kernels are per-ISA twins
-//! ([`super::conv_avx2`]: two blocks in 8-float registers; [`super::conv_avx512`]: four blocks
+//! (`conv_avx2`: two blocks in 8-float registers; `conv_avx512`: four blocks
 //! in 16-float registers, two blocks a register), with a plain loop elsewhere; every one does
 //! each output lane's multiply-adds in the same order, so all give the same bits. A
 //! concatenation is two sources read one after the other, never copied. Bias and ReLU are
