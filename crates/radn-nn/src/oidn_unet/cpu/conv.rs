@@ -225,6 +225,26 @@ pub(super) const PLAIN: [usize; 12] = [0, 1, 2, 3, 4, 5, 6, 7, 8, 9, 10, 11];
 pub(super) const UP_PAIR: [usize; 12] = [0, 0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5];
 pub(super) const UP_SINGLE: [usize; 12] = [0, 1, 1, 2, 2, 3, 3, 4, 4, 5, 5, 6];
 
+/// Runs `$lanes!(p, wt, OFFSETS)` for every input block and tap of task `$task` at column `$x`
+/// (`p` the tap's input pixels, `wt` its packed weights, `OFFSETS` the pattern its pixels
+/// follow): the loop every wide micro-kernel runs around its own register block.
+macro_rules! for_each_tap {
+    ($task:expr, $x:expr, $lanes:ident) => {
+        for ib in 0..$task.ins.len() {
+            for tap in 0..9 {
+                let (p, wt, offsets) = $task.tap(ib, tap, $x);
+                match offsets {
+                    Offsets::Plain => $lanes!(p, wt, PLAIN),
+                    Offsets::UpPair => $lanes!(p, wt, UP_PAIR),
+                    Offsets::UpSingle => $lanes!(p, wt, UP_SINGLE),
+                }
+            }
+        }
+    };
+}
+#[cfg(target_arch = "x86_64")]
+pub(super) use for_each_tap;
+
 /// Which of the offset patterns a tap's pixels follow.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub(super) enum Offsets {

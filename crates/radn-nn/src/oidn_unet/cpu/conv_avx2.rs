@@ -4,7 +4,7 @@
 use std::arch::x86_64::*;
 
 use super::blocked::LANES;
-use super::conv::{Offsets, Task, PAIR, PLAIN, UP_PAIR, UP_SINGLE};
+use super::conv::{for_each_tap, Offsets, Task, PAIR, PLAIN, UP_PAIR, UP_SINGLE};
 
 /// Pixels per call with two output blocks (12 accumulators, 2 weight registers and a
 /// broadcast: 15 of the 16).
@@ -99,16 +99,7 @@ impl Task<'_> {
                 }
             };
         }
-        for ib in 0..self.ins.len() {
-            for tap in 0..9 {
-                let (p, wt, offsets) = self.tap(ib, tap, x);
-                match offsets {
-                    Offsets::Plain => lanes!(p, wt, PLAIN),
-                    Offsets::UpPair => lanes!(p, wt, UP_PAIR),
-                    Offsets::UpSingle => lanes!(p, wt, UP_SINGLE),
-                }
-            }
-        }
+        for_each_tap!(self, x, lanes);
         let zero = _mm256_setzero_ps();
         let st = |p: *mut f32, px: usize, v: __m256| {
             _mm256_storeu_ps(p.add(px * LANES), _mm256_max_ps(v, zero));
@@ -154,16 +145,7 @@ impl Task<'_> {
                 }
             };
         }
-        for ib in 0..self.ins.len() {
-            for tap in 0..9 {
-                let (p, wt, offsets) = self.tap(ib, tap, x);
-                match offsets {
-                    Offsets::Plain => lanes!(p, wt, PLAIN),
-                    Offsets::UpPair => lanes!(p, wt, UP_PAIR),
-                    Offsets::UpSingle => lanes!(p, wt, UP_SINGLE),
-                }
-            }
-        }
+        for_each_tap!(self, x, lanes);
         let zero = _mm256_setzero_ps();
         for (px, v) in [a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11]
             .into_iter()

@@ -6,7 +6,7 @@
 use std::arch::x86_64::*;
 
 use super::blocked::LANES;
-use super::conv::{Offsets, Task, PAIR, PLAIN, UP_PAIR, UP_SINGLE};
+use super::conv::{for_each_tap, Offsets, Task, PAIR, PLAIN, UP_PAIR, UP_SINGLE};
 
 /// Pixels per call of the wide kernels.
 const PX: usize = 12;
@@ -123,16 +123,7 @@ impl Task<'_> {
                 }
             };
         }
-        for ib in 0..self.ins.len() {
-            for tap in 0..9 {
-                let (p, wt, offsets) = self.tap(ib, tap, x);
-                match offsets {
-                    Offsets::Plain => lanes!(p, wt, PLAIN),
-                    Offsets::UpPair => lanes!(p, wt, UP_PAIR),
-                    Offsets::UpSingle => lanes!(p, wt, UP_SINGLE),
-                }
-            }
-        }
+        for_each_tap!(self, x, lanes);
         let o2 = out.add(2 * self.bs);
         for (px, v) in [a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11]
             .into_iter()
@@ -180,16 +171,7 @@ impl Task<'_> {
                 }
             };
         }
-        for ib in 0..self.ins.len() {
-            for tap in 0..9 {
-                let (p, wt, offsets) = self.tap(ib, tap, x);
-                match offsets {
-                    Offsets::Plain => lanes!(p, wt, PLAIN),
-                    Offsets::UpPair => lanes!(p, wt, UP_PAIR),
-                    Offsets::UpSingle => lanes!(p, wt, UP_SINGLE),
-                }
-            }
-        }
+        for_each_tap!(self, x, lanes);
         for (px, v) in [a0, a1, a2, a3, a4, a5, a6, a7, a8, a9, a10, a11]
             .into_iter()
             .enumerate()
