@@ -19,6 +19,7 @@ use burn::store::ModuleSnapshot;
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+use radn_core::align::warp::Resampling;
 use radn_nn::oidn_unet::temporal::{AuxSource, TemporalConfig, TemporalUnet, WarpSpace};
 use radn_nn::oidn_unet::transfer::HDR_BEAUTY;
 use radn_nn::oidn_unet::{store, temporal_store};
@@ -132,6 +133,15 @@ pub struct FinetuneConfig {
     /// ([`TemporalConfig::warp`], kept in the model file); training reads aligned tiles.
     #[serde(default)]
     pub warp: WarpSpace,
+    /// Frames of each window whose colour is averaged into the centre frame's input
+    /// ([`TemporalConfig::input_frames`], kept in the model file): in training, the centre
+    /// slot of whole windows (the pairs without the centre read frames as rendered).
+    #[serde(default = "default_input_frames")]
+    pub input_frames: usize,
+}
+
+fn default_input_frames() -> usize {
+    1
 }
 
 fn default_true() -> bool {
@@ -242,6 +252,15 @@ impl Finetune {
                 train.manifest.aux_prefilters, val.manifest.aux_prefilters
             )));
         }
+        if config.input_frames > 1 && train.manifest.resampling != Resampling::Nearest {
+            return Err(NnError::Config(format!(
+                "input_frames = {}: the centre's mean is made of nearest-pixel samples at \
+                 inference, and these tiles were aligned with {} samples (prepare them with \
+                 --resampling nearest)",
+                config.input_frames,
+                train.manifest.resampling.name()
+            )));
+        }
         let unet = store::load(&base.join(&config.init), device)?;
         // the blocks' initial weights from the seed (a resumed run then loads its own)
         device.seed(config.seed);
@@ -255,6 +274,7 @@ impl Finetune {
                 Some(_) => AuxSource::Prefiltered,
                 None => AuxSource::Rendered,
             },
+            input_frames: config.input_frames,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;
@@ -360,7 +380,13 @@ impl Finetune {
     /// One optimizer step; returns the training loss.
     pub fn step(&mut self) -> Result<f64> {
         let plan = self.plan(self.state.step);
-        let b = batch(&self.train, &plan, self.config.crop, &self.device)?;
+        let b = batch(
+            &self.train,
+            &plan,
+            self.config.crop,
+            self.config.input_frames,
+            &self.device,
+        )?;
         let loss = self
             .config
             .loss
@@ -407,7 +433,13 @@ impl Finetune {
                 corner: (0, 0),
                 frames: (0..self.val.manifest.frames).collect(),
             };
-            let b = batch(&self.val, &[whole], self.config.crop, &plain)?;
+            let b = batch(
+                &self.val,
+                &[whole],
+                self.config.crop,
+                self.config.input_frames,
+                &plain,
+            )?;
             let diff = net.forward(b.window, None) - b.target;
             l1 += diff.clone().abs().mean().into_scalar::<f32>() as f64;
             let mse = diff.powi_scalar(2).mean().into_scalar::<f32>() as f64;

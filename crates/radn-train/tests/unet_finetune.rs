@@ -233,3 +233,56 @@ fn prefiltered_tiles_hold_each_frames_cleaned_auxiliaries_and_convert_a_clean_au
         .to_string();
     assert!(err.contains("--aux"), "{err}");
 }
+
+/// A fine-tune whose centre input is averaged over 3 frames: the model it converts carries
+/// the setting for inference, and its windows' centre slot reads the aligned mean, which
+/// already brings the untrained network closer to the validation targets. The mean is of
+/// nearest-pixel samples at inference, so tiles aligned otherwise are refused.
+#[test]
+fn an_input_mean_is_carried_into_the_model_and_brings_the_start_closer() {
+    use radn_core::align::warp::Resampling;
+    let d = tempfile::tempdir().unwrap();
+    let nearest = |name: &str, per_window: usize, seed: u64| {
+        let mut o = PrepareOptions::new(32, per_window, seed);
+        o.resampling = Resampling::Nearest;
+        prepare(&sample(), &d.path().join(name), &o, |_, _| {}).unwrap();
+    };
+    nearest("train", 2, 1);
+    nearest("val", 1, 2);
+    let device = Device::flex().autodiff();
+    let start = |input_frames: usize| {
+        let mut cfg = config(1, "temporal");
+        cfg.input_frames = input_frames;
+        let run = Finetune::new(
+            cfg,
+            d.path(),
+            &d.path().join(format!("in{input_frames}")),
+            false,
+            &device,
+        )
+        .unwrap();
+        assert_eq!(run.net().config().input_frames, input_frames);
+        run.validation().unwrap()
+    };
+    let ((l1_alone, psnr_alone), (l1_mean, psnr_mean)) = (start(1), start(3));
+    assert!(
+        l1_mean < l1_alone && psnr_mean > psnr_alone + 0.05,
+        "alone: L1 {l1_alone:.5}, {psnr_alone:.2} dB; averaged: L1 {l1_mean:.5}, {psnr_mean:.2} dB"
+    );
+    let refused = |cfg: FinetuneConfig, base: &Path| {
+        Finetune::new(cfg, base, &base.join("bad"), false, &device)
+            .err()
+            .expect("refused")
+            .to_string()
+    };
+    let mut cfg = config(1, "temporal");
+    cfg.input_frames = 2;
+    let e = refused(cfg, d.path());
+    assert!(e.contains("input mean over 2 frames"), "{e}");
+    let bilinear = tempfile::tempdir().unwrap();
+    tiles(bilinear.path());
+    let mut cfg = config(1, "temporal");
+    cfg.input_frames = 3;
+    let e = refused(cfg, bilinear.path());
+    assert!(e.contains("--resampling nearest"), "{e}");
+}

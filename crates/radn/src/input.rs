@@ -125,6 +125,8 @@ pub enum ResamplingArg {
     Bilinear,
     /// Sixteen pixels, clamped to the four nearest pixels' range.
     CatmullRom,
+    /// The nearest pixel (noise stays per pixel in a mean of warped frames).
+    Nearest,
 }
 
 impl From<ResamplingArg> for radn_core::align::warp::Resampling {
@@ -132,6 +134,7 @@ impl From<ResamplingArg> for radn_core::align::warp::Resampling {
         match r {
             ResamplingArg::Bilinear => Self::Bilinear,
             ResamplingArg::CatmullRom => Self::CatmullRom,
+            ResamplingArg::Nearest => Self::Nearest,
         }
     }
 }

@@ -28,6 +28,17 @@ fn model_with_blocks(path: &Path, gate: f32, levels: Vec<usize>) {
 /// A converted standard U-Net with blocks at `levels`, every gate at `gate`, and its window
 /// moved onto the centre in `warp`.
 fn model_with(path: &Path, gate: f32, levels: Vec<usize>, warp: WarpSpace) {
+    model_averaging(path, gate, levels, warp, 1);
+}
+
+/// [`model_with`] whose centre frame's input is averaged over `input_frames` aligned frames.
+fn model_averaging(
+    path: &Path,
+    gate: f32,
+    levels: Vec<usize>,
+    warp: WarpSpace,
+    input_frames: usize,
+) {
     let device = Device::flex();
     device.seed(7);
     let net = TemporalUnet::convert(
@@ -38,6 +49,7 @@ fn model_with(path: &Path, gate: f32, levels: Vec<usize>, warp: WarpSpace) {
             color_confidence: Some(0.6),
             warp,
             aux: Default::default(),
+            input_frames,
         },
         &device,
     )
@@ -130,14 +142,23 @@ fn banded_denoising_equals_whole_frame_denoising() {
     // the sample stacked to 300 rows with AOVs and alpha; blocks at levels 0-2 (a halo of 128
     // rows), so that 32-row bands leave much of each frame unread: each band aligns only the
     // rows its window reaches and runs at the whole frame's exposures
+    // (and with the centre's input averaged over 3 frames of the band's window)
     let d = tempfile::tempdir().unwrap();
-    let net = d.path().join("open.st");
-    model_with_blocks(&net, 0.5, vec![0, 1, 2]);
     let input = common::tall(d.path());
+    for input_frames in [1, 3] {
+        let net = d.path().join(format!("open{input_frames}.st"));
+        model_averaging(&net, 0.5, vec![0, 1, 2], WarpSpace::Images, input_frames);
+        bands_equal_whole(d.path(), &input, &net, input_frames);
+    }
+}
+
+/// `radn denoise` with `net` on frames 3-7 of `input` in 32-row bands and on whole frames:
+/// every channel within 1e-5 (relative) of each other.
+fn bands_equal_whole(dir: &Path, input: &str, net: &Path, tag: usize) {
     let run = |name: &str, bands: &str| {
-        let out = d.path().join(name);
+        let out = dir.join(name);
         let r = denoise_from(
-            &input,
+            input,
             &out,
             "3-7",
             &[
@@ -154,8 +175,8 @@ fn banded_denoising_equals_whole_frame_denoising() {
             .map(|f| ExrFile::read(out.join(format!("frame_{f:04}.exr"))).unwrap())
             .collect::<Vec<_>>()
     };
-    let whole = run("whole", "never");
-    let banded = run("banded", "32");
+    let whole = run(&format!("whole{tag}"), "never");
+    let banded = run(&format!("banded{tag}"), "32");
     let mut compared = 0;
     for (a, b) in whole.iter().zip(&banded) {
         for name in a.channel_names() {
@@ -335,4 +356,46 @@ fn prefiltered_auxiliaries_give_the_clean_auxiliary_unet_with_closed_gates_and_b
             );
         }
     }
+}
+
+/// The centre's input averaged over its aligned 3-frame window (gates closed: the U-Net on
+/// that input) carries the window's samples into the U-Net: on the sample's noisiest level
+/// every frame of 3-7 comes closer to the reference, by at least 0.2 dB on average (measured
+/// with the standard U-Net: +0.37 dB, +0.21 to +0.51 per frame).
+#[test]
+fn an_input_averaged_over_the_window_comes_closer_to_the_reference() {
+    let d = tempfile::tempdir().unwrap();
+    let psnrs = |input_frames: usize| -> Vec<f64> {
+        let net = d.path().join(format!("in{input_frames}.st"));
+        model_averaging(&net, 0.0, vec![0, 1], WarpSpace::Features, input_frames);
+        let out = d.path().join(format!("out{input_frames}"));
+        let r = denoise(
+            &out,
+            "3-7",
+            &["--method", "temporal", "--model", net.to_str().unwrap()],
+        );
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let said = String::from_utf8_lossy(&r.stdout).into_owned();
+        assert_eq!(
+            said.contains("input averaged over 3"),
+            input_frames == 3,
+            "{said}"
+        );
+        let reference = Path::new("../../samples/cycles-sample/ref");
+        (3..=7)
+            .map(|f| {
+                radn_core::eval::metrics::psnr(&beauty(&out, f), &beauty(reference, f)).unwrap()
+            })
+            .collect()
+    };
+    let (alone, averaged) = (psnrs(1), psnrs(3));
+    for (f, (a, m)) in alone.iter().zip(&averaged).enumerate() {
+        assert!(
+            m > a,
+            "frame {}: {a:.2} dB alone, {m:.2} dB averaged",
+            f + 3
+        );
+    }
+    let gain = averaged.iter().zip(&alone).map(|(m, a)| m - a).sum::<f64>() / 5.0;
+    assert!(gain >= 0.2, "mean gain {gain:.3} dB");
 }

@@ -61,6 +61,9 @@ pub enum Resampling {
     /// pixels of each row and column, with slopes from their neighbours), clamped to the four
     /// nearest pixels' range.
     CatmullRom,
+    /// The nearest pixel: no blend between pixels, so Monte Carlo noise stays per pixel
+    /// (white) in a mean of warped frames, at up to half a pixel's misplacement.
+    Nearest,
 }
 
 impl Resampling {
@@ -74,6 +77,7 @@ impl Resampling {
         match self {
             Resampling::Bilinear => "bilinear",
             Resampling::CatmullRom => "catmull-rom",
+            Resampling::Nearest => "nearest",
         }
     }
 }
@@ -178,7 +182,12 @@ pub fn warp_bands_linked(
                     "band rows do not hold row {y0}"
                 );
                 match resampling {
-                    Resampling::Bilinear => {
+                    Resampling::Bilinear | Resampling::Nearest => {
+                        // the nearest pixel is the bilinear blend with weights rounded to 0 or 1
+                        let (tx, ty) = match resampling {
+                            Resampling::Nearest => (tx.round(), ty.round()),
+                            _ => (tx, ty),
+                        };
                         let x1 = (x0 + 1).min(w - 1);
                         let y1 = (y0 + 1).min(full_h - 1);
                         let r0 = y0.saturating_sub(band_y0).min(last);
@@ -221,7 +230,7 @@ pub fn warp_bands_linked(
                     // writes it.
                     let row = unsafe { dst.row(c * n + y * w, w) };
                     match resampling {
-                        Resampling::Bilinear => {
+                        Resampling::Bilinear | Resampling::Nearest => {
                             for (d, t) in row.iter_mut().zip(taps.iter()) {
                                 let a = ch[t.top[0]] * (1.0 - t.fx) + ch[t.top[1]] * t.fx;
                                 let b = ch[t.bottom[0]] * (1.0 - t.fx) + ch[t.bottom[1]] * t.fx;
@@ -437,6 +446,22 @@ mod tests {
             },
         );
         warp_bands(&[Band::whole(src)], Band::whole(&flow), resampling).remove(0)
+    }
+
+    #[test]
+    fn nearest_takes_the_closest_pixel_unblended() {
+        let src = Plane::from_fn(16, 12, 2, |x, y, c| (x * 7 + y * 13 + c * 101) as f32);
+        // 2.4 rounds to 2, -1.6 to -2: every value is a source pixel's, exactly
+        let out = shifted(&src, 2.4, -1.6, Resampling::Nearest);
+        for y in 2..12 {
+            for x in 0..13 {
+                for c in 0..2 {
+                    assert_eq!(out.get(x, y, c), src.get(x + 2, y - 2, c), "{x},{y}");
+                }
+            }
+        }
+        let out = shifted(&src, 0.6, 0.5, Resampling::Nearest);
+        assert_eq!(out.get(4, 4, 1), src.get(5, 5, 1));
     }
 
     #[test]

@@ -35,6 +35,21 @@ pub struct TemporalConfig {
     /// Which albedo and normal the U-Net reads.
     #[serde(default, skip_serializing_if = "AuxSource::is_rendered")]
     pub aux: AuxSource,
+    /// Frames of the aligned window (odd, centred) whose colour is averaged into the centre
+    /// frame's input before the encoder ([`input_mean`](super::input_mean)); 1: the centre
+    /// as rendered. Applied at inference; the blocks train on windows as rendered.
+    #[serde(default = "one_frame", skip_serializing_if = "is_one_frame")]
+    pub input_frames: usize,
+}
+
+/// [`TemporalConfig::input_frames`] of model files that do not name it: the centre alone.
+fn one_frame() -> usize {
+    1
+}
+
+/// Whether `n` is [`one_frame`] (left out of model files).
+fn is_one_frame(n: &usize) -> bool {
+    *n == 1
 }
 
 /// The albedo and normal a converted network reads with each frame of its window.
@@ -151,6 +166,14 @@ pub enum TemporalError {
         /// The encoder's deepest level.
         last: usize,
     },
+    /// The input mean's frames are not odd or not within the window.
+    #[error("an input mean over {input} frames: it must be odd and at most the window's {frames}")]
+    InputFrames {
+        /// The frames asked for.
+        input: usize,
+        /// The window's length.
+        frames: usize,
+    },
 }
 
 impl TemporalUnet {
@@ -163,6 +186,12 @@ impl TemporalUnet {
     ) -> Result<Self, TemporalError> {
         if config.frames < 3 || config.frames.is_multiple_of(2) {
             return Err(TemporalError::Frames(config.frames));
+        }
+        if config.input_frames.is_multiple_of(2) || config.input_frames > config.frames {
+            return Err(TemporalError::InputFrames {
+                input: config.input_frames,
+                frames: config.frames,
+            });
         }
         let channels = unet.level_channels();
         let last = channels.len() - 1;
@@ -307,6 +336,7 @@ mod tests {
                 color_confidence: None,
                 warp: Default::default(),
                 aux: Default::default(),
+                input_frames: 1,
             },
             &device,
         )
@@ -351,7 +381,7 @@ mod tests {
     #[test]
     fn bad_configurations_are_refused() {
         let device = Device::flex();
-        let bad = |frames, levels: Vec<usize>| {
+        let bad_mean = |frames, levels: Vec<usize>, input_frames| {
             TemporalUnet::convert(
                 unet(&device),
                 TemporalConfig {
@@ -360,20 +390,27 @@ mod tests {
                     color_confidence: None,
                     warp: Default::default(),
                     aux: Default::default(),
+                    input_frames,
                 },
                 &device,
             )
             .unwrap_err()
             .to_string()
         };
+        let bad = |frames, levels| bad_mean(frames, levels, 1);
         assert!(bad(4, vec![1]).contains("odd"));
+        assert!(bad_mean(5, vec![1], 2).contains("input mean over 2 frames"));
+        assert!(bad_mean(3, vec![1], 5).contains("at most the window's 3"));
         assert!(bad(5, vec![5]).contains("levels 0 to 4"));
         assert!(bad(5, vec![2, 1]).contains("in order"));
         // model files written before the field existed read as rendered auxiliaries
         let old: TemporalConfig = toml::from_str("frames = 5\nlevels = [1]\n").unwrap();
         assert_eq!(old.aux, AuxSource::Rendered);
+        assert_eq!(old.input_frames, 1);
+        assert!(!old.to_toml().contains("input_frames"));
         let cleaned = TemporalConfig {
             aux: AuxSource::Prefiltered,
+            input_frames: 3,
             ..old
         };
         assert_eq!(
@@ -398,6 +435,7 @@ mod tests {
                 color_confidence: None,
                 warp: Default::default(),
                 aux: Default::default(),
+                input_frames: 1,
             },
             &device,
         )

@@ -366,6 +366,7 @@ mod tests {
             color_confidence: None,
             warp: Default::default(),
             aux: Default::default(),
+            input_frames: 1,
         };
         TemporalUnet::convert(unet, config, &device)
             .unwrap()

@@ -116,6 +116,7 @@ mod tests {
             color_confidence: Some(0.6),
             warp: Default::default(),
             aux: Default::default(),
+            input_frames: 1,
         };
         let net = TemporalUnet::convert(unet, config.clone(), &device).unwrap();
         // open the gates so the blocks' weights matter

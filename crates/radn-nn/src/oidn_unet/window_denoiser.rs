@@ -13,6 +13,7 @@ use std::ops::Range;
 use std::path::PathBuf;
 use std::sync::{Arc, Mutex};
 
+use radn_core::align::warp::Resampling;
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::error::{Error, Result};
 use radn_core::io::frame::Frame;
@@ -24,6 +25,7 @@ use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
+use crate::oidn_unet::input_mean::window_mean;
 use crate::oidn_unet::prefilter::{cleaned_of, AuxPrefilter, CLEAN_AUX_CHANNELS};
 use crate::oidn_unet::temporal::{AuxSource, TemporalConfig, WarpSpace};
 use crate::oidn_unet::temporal_filter::{FrameLevels, TemporalFilter};
@@ -48,6 +50,7 @@ pub struct TemporalDenoiser {
     tile_pixels: usize,
     warp: WarpSpace,
     prefilter: Option<AuxPrefilter>,
+    input_frames: usize,
     cache: Mutex<LevelCache>,
 }
 
@@ -69,6 +72,12 @@ impl TemporalDenoiser {
         );
         let mut align = AlignParams::default();
         align.confidence.color = config.color_confidence;
+        if config.input_frames > 1 {
+            // the mean's noise stays per pixel (white, as the U-Net was trained on) with
+            // nearest-pixel samples; blended samples leave it correlated, which the U-Net
+            // keeps as blotches on dark, noisy frames (docs/research/oidn-temporal.md)
+            align.resampling = Resampling::Nearest;
+        }
         Self {
             filter,
             align,
@@ -76,6 +85,7 @@ impl TemporalDenoiser {
             tile_pixels: DEFAULT_TILE_PIXELS,
             warp: config.warp,
             prefilter,
+            input_frames: config.input_frames,
             cache: Mutex::default(),
         }
     }
@@ -91,7 +101,7 @@ impl TemporalDenoiser {
     pub fn summary(&self) -> String {
         let c = self.filter.unet().config();
         format!(
-            "{} ({}{} over {} frames, OIDN {}, {} warped)",
+            "{} ({}{} over {} frames{}, OIDN {}, {} warped)",
             self.name,
             c.weights,
             self.prefilter.as_ref().map_or(String::new(), |p| {
@@ -99,6 +109,10 @@ impl TemporalDenoiser {
                 format!(" on {a} and {n}")
             }),
             self.filter.frames(),
+            match self.input_frames {
+                1 => String::new(),
+                n => format!(", input averaged over {n}"),
+            },
             c.oidn_version,
             match self.warp {
                 WarpSpace::Images => "images",
@@ -171,6 +185,7 @@ impl TemporalDenoiser {
         &self,
         window: &[Option<&Frame>],
         win: &AlignedWindow,
+        mean: Option<&Frame>,
         scales: &[f32],
     ) -> Result<Denoised> {
         let centre = window[self.radius()].expect("the centre frame is present");
@@ -188,7 +203,15 @@ impl TemporalDenoiser {
             // EXPOSURE_REUSE_STOPS of the centre's, else it goes through the encoder again
             let levels = frames
                 .iter()
-                .map(|f| {
+                .enumerate()
+                .map(|(k, f)| {
+                    // the centre's input averaged over its window is encoded for this window
+                    // alone; the frame as rendered serves its neighbours' windows
+                    if let Some(m) = mean.filter(|_| k == self.radius()) {
+                        return self
+                            .encode(m, image, scales[image], "from its window's mean")
+                            .map(Arc::new);
+                    }
                     let own = self.levels_of(f, image)?;
                     let stops = (own.scale() / scales[image]).log2().abs();
                     if stops <= EXPOSURE_REUSE_STOPS {
@@ -272,6 +295,37 @@ impl TemporalDenoiser {
     }
 }
 
+impl TemporalDenoiser {
+    /// `centre` (a frame or a band) with its beauty and AOVs averaged over the middle
+    /// `input_frames` frames of its aligned window `win`; `None` when the model reads the
+    /// centre as rendered.
+    fn input_mean(&self, centre: &Frame, win: &AlignedWindow) -> Option<Frame> {
+        if self.input_frames <= 1 {
+            return None;
+        }
+        let (color, aovs) = window_mean(win, self.input_frames);
+        let mut f = centre.clone();
+        f.color = color;
+        for (a, p) in f.aovs.iter_mut().zip(aovs) {
+            a.plane = p;
+        }
+        Some(f)
+    }
+}
+
+/// `win` with its centre's beauty and AOVs those of `mean`, where given.
+fn with_centre(mut win: AlignedWindow, mean: Option<&Frame>) -> AlignedWindow {
+    if let Some(m) = mean {
+        let r = win.radius();
+        let c = &mut win.frames[r];
+        c.color = m.color.clone();
+        for (p, a) in c.aovs.iter_mut().zip(&m.aovs) {
+            *p = a.plane.clone();
+        }
+    }
+    win
+}
+
 /// Frame (or band) `f` with the albedo and normal its features hold cleaned
 /// ([`AuxPrefilter::features`], made once per frame by the sequence job), or cleaned now where
 /// it has no features (a window given frames directly).
@@ -349,9 +403,13 @@ impl WindowDenoiser for TemporalDenoiser {
             .chain(centre.aovs.iter().map(|a| &a.plane))
             .map(|p| self.filter.unet().autoexposure(p))
             .collect();
+        let mean = self.input_mean(centre, &win);
         match self.warp {
-            WarpSpace::Images => self.denoise_aligned(&win, centre, &scales, 0..centre.height()),
-            WarpSpace::Features => self.denoise_warped(window, &win, &scales),
+            WarpSpace::Images => {
+                let win = with_centre(win, mean.as_ref());
+                self.denoise_aligned(&win, centre, &scales, 0..centre.height())
+            }
+            WarpSpace::Features => self.denoise_warped(window, &win, mean.as_ref(), &scales),
         }
     }
 
@@ -430,6 +488,8 @@ impl BandDenoiser for TemporalDenoiser {
         };
         let band = window[self.radius()].expect("the centre band is present");
         let win = align_bands(&window, &self.align);
+        let mean = self.input_mean(band.frame, &win);
+        let win = with_centre(win, mean.as_ref());
         // every band at the exposure of the whole centre frame's planes
         let scales: Vec<f32> = centre
             .autoexposure

@@ -24,7 +24,7 @@ pub const KEYS: &[(&str, &str)] = &[
     ),
     (
         "resampling",
-        "side frames between pixels: bilinear|catmull-rom; auto: as trained",
+        "side frames between pixels: bilinear|catmull-rom|nearest; auto: as trained",
     ),
     ("schedule.min-scale", "noise scale of the cleanest frames"),
     (
@@ -122,7 +122,8 @@ impl Recipe {
                     "auto" => None,
                     "bilinear" => Some(Resampling::Bilinear),
                     "catmull-rom" => Some(Resampling::CatmullRom),
-                    _ => return Err(bad("give auto, bilinear or catmull-rom")),
+                    "nearest" => Some(Resampling::Nearest),
+                    _ => return Err(bad("give auto, bilinear, catmull-rom or nearest")),
                 }
             }
             "schedule.min-scale" => self.schedule.min_scale = num(value)?,
@@ -239,7 +240,7 @@ impl Recipe {
             "resampling" => match self.resampling {
                 None => "auto".into(),
                 Some(Resampling::Bilinear) => "bilinear".into(),
-                Some(Resampling::CatmullRom) => "catmull-rom".into(),
+                Some(r) => r.name().into(),
             },
             "schedule.min-scale" => self.schedule.min_scale.to_string(),
             "schedule.level-at-min" => self.schedule.level_at_min.to_string(),

@@ -85,11 +85,14 @@ pub(super) fn target_for(input: usize) -> usize {
     }
 }
 
-/// Processed windows and PU targets of `plan` (tile, input level, target level, crop corner).
+/// Processed windows and PU targets of `plan` (tile, input level, target level, crop corner);
+/// the centre slot of a whole window reads the mean of the middle `input_frames` frames (the
+/// tiles' windows are aligned, as inference aligns them before averaging).
 pub(super) fn batch(
     set: &TileDataset,
     plan: &[Draw],
     crop: usize,
+    input_frames: usize,
     device: &Device,
 ) -> Result<Batch> {
     let m = &set.manifest;
@@ -116,17 +119,32 @@ pub(super) fn batch(
         let mut bins = ExposureBins::new(crop, crop);
         bins.add_rows(0, &rgb);
         let scale = bins.exposure();
-        for &k in &d.frames {
+        let whole = d.frames.iter().copied().eq(0..t);
+        let averaged: Vec<usize> = (t / 2 - input_frames / 2..=t / 2 + input_frames / 2).collect();
+        for (slot, &k) in d.frames.iter().enumerate() {
+            // the frames whose colour this slot reads (their mean)
+            let sources = if whole && slot == t / 2 {
+                averaged.as_slice()
+            } else {
+                std::slice::from_ref(&k)
+            };
+            for c in 0..3 {
+                for y in 0..crop {
+                    for x in 0..crop {
+                        let sum: f32 = sources.iter().map(|&j| colour[at(j * 3 + c, x, y)]).sum();
+                        window.push(HDR_BEAUTY.input(sum / sources.len() as f32, scale));
+                    }
+                }
+            }
             let planes = [
-                (k * 3, colour, HDR_BEAUTY),
-                (k * channels + 3, features, AUX_ALBEDO),
-                (k * channels + 6, features, AUX_NORMAL),
+                (k * channels + 3, AUX_ALBEDO),
+                (k * channels + 6, AUX_NORMAL),
             ];
-            for (first, data, processing) in planes {
+            for (first, processing) in planes {
                 for c in 0..3 {
                     for y in 0..crop {
                         for x in 0..crop {
-                            window.push(processing.input(data[at(first + c, x, y)], scale));
+                            window.push(processing.input(features[at(first + c, x, y)], scale));
                         }
                     }
                 }

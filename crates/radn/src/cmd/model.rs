@@ -60,6 +60,10 @@ pub struct ConvertArgs {
     /// and normal prefilters (for clean-auxiliary weights such as rt_hdr_calb_cnrm_large).
     #[arg(long, default_value = "rendered", value_parser = ["rendered", "prefiltered"])]
     pub aux: String,
+    /// Frames of the aligned window (odd) whose colour is averaged into the centre frame's
+    /// input before the encoder (1: the centre as rendered).
+    #[arg(long, default_value_t = 1)]
+    pub input_frames: usize,
     /// The model file to write (a new file: nothing is replaced).
     #[arg(short, long, value_name = "FILE")]
     pub out: PathBuf,
@@ -88,6 +92,7 @@ fn convert(a: ConvertArgs) -> Result<()> {
             "prefiltered" => AuxSource::Prefiltered,
             _ => AuxSource::Rendered,
         },
+        input_frames: a.input_frames,
     };
     let net = TemporalUnet::convert(unet, config, &device)
         .with_context(|| format!("converting '{}'", a.unet.display()))?;
