@@ -138,6 +138,10 @@ pub struct FinetuneConfig {
     /// slot of whole windows (the pairs without the centre read frames as rendered).
     #[serde(default = "default_input_frames")]
     pub input_frames: usize,
+    /// The temporal pass over the results at inference ([`TemporalConfig::stabilize`], kept
+    /// in the model file; training does not see it).
+    #[serde(default)]
+    pub stabilize: Option<radn_core::post::stabilize::StabilizeSettings>,
 }
 
 fn default_input_frames() -> usize {
@@ -275,6 +279,7 @@ impl Finetune {
                 None => AuxSource::Rendered,
             },
             input_frames: config.input_frames,
+            stabilize: config.stabilize,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;

@@ -9,6 +9,7 @@ use std::path::Path;
 use std::process::Command;
 
 use radn_core::io::exr_file::ExrFile;
+use radn_core::post::stabilize::StabilizeSettings;
 use radn_nn::burn::tensor::Device;
 use radn_nn::oidn_unet::temporal::{TemporalConfig, TemporalUnet, WarpSpace};
 use radn_nn::oidn_unet::{store, temporal_store};
@@ -39,6 +40,18 @@ fn model_averaging(
     warp: WarpSpace,
     input_frames: usize,
 ) {
+    model_full(path, gate, levels, warp, input_frames, None);
+}
+
+/// [`model_averaging`] with the temporal pass `stabilize` over its results.
+fn model_full(
+    path: &Path,
+    gate: f32,
+    levels: Vec<usize>,
+    warp: WarpSpace,
+    input_frames: usize,
+    stabilize: Option<StabilizeSettings>,
+) {
     let device = Device::flex();
     device.seed(7);
     let net = TemporalUnet::convert(
@@ -50,6 +63,7 @@ fn model_averaging(
             warp,
             aux: Default::default(),
             input_frames,
+            stabilize,
         },
         &device,
     )
@@ -398,4 +412,100 @@ fn an_input_averaged_over_the_window_comes_closer_to_the_reference() {
     }
     let gain = averaged.iter().zip(&alone).map(|(m, a)| m - a).sum::<f64>() / 5.0;
     assert!(gain >= 0.2, "mean gain {gain:.3} dB");
+}
+
+/// A converted model that asks for the temporal pass over its results: `radn denoise` runs it
+/// (the summary says so) and, on the sample's noisiest level, it brings frames 3-7 closer to
+/// the reference by at least 0.2 dB and flickers less, tMAE at most 0.95× the same network's
+/// without it (measured: +0.43 dB, 0.90×); band by band it gives the whole frames' result.
+#[test]
+fn a_stabilized_model_flickers_less_and_comes_closer_to_the_reference() {
+    let d = tempfile::tempdir().unwrap();
+    let input = common::tall(d.path());
+    let tall = |out: &Path, net: &Path, bands: &str| {
+        let r = denoise_from(
+            &input,
+            out,
+            "3-7",
+            &[
+                "--method",
+                "temporal",
+                "--model",
+                net.to_str().unwrap(),
+                "--bands",
+                bands,
+            ],
+        );
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        String::from_utf8_lossy(&r.stdout).into_owned()
+    };
+    let run = |name: &str, stabilize: Option<StabilizeSettings>| {
+        let net = d.path().join(format!("{name}.st"));
+        model_full(&net, 0.0, vec![0, 1], WarpSpace::Features, 1, stabilize);
+        let out = d.path().join(name);
+        let r = denoise(
+            &out,
+            "3-7",
+            &["--method", "temporal", "--model", net.to_str().unwrap()],
+        );
+        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+        let said = String::from_utf8_lossy(&r.stdout).into_owned();
+        assert_eq!(
+            said.contains("results stabilized"),
+            stabilize.is_some(),
+            "{said}"
+        );
+        (out, net)
+    };
+    let settings = StabilizeSettings {
+        strength: 0.6,
+        floor: 0.0005,
+        noise_radius: 2,
+    };
+    let (plain, _) = run("plain", None);
+    let (stable, net) = run("stable", Some(settings));
+    let reference = Path::new("../../samples/cycles-sample/ref");
+    let score = |dir: &Path| -> (f64, f64) {
+        let frames: Vec<_> = (3..=7).map(|f| beauty(dir, f)).collect();
+        let refs: Vec<_> = (3..=7).map(|f| beauty(reference, f)).collect();
+        let psnr = frames
+            .iter()
+            .zip(&refs)
+            .map(|(a, r)| radn_core::eval::metrics::psnr(a, r).unwrap())
+            .sum::<f64>()
+            / 5.0;
+        let tmae = (1..5)
+            .map(|i| {
+                radn_core::eval::metrics::temporal(
+                    &frames[i - 1],
+                    &frames[i],
+                    &refs[i - 1],
+                    &refs[i],
+                )
+                .unwrap()
+                .0
+            })
+            .sum::<f64>()
+            / 4.0;
+        (psnr, tmae)
+    };
+    let ((p0, t0), (p1, t1)) = (score(&plain), score(&stable));
+    assert!(
+        p1 > p0 + 0.2 && t1 < 0.95 * t0,
+        "without: {p0:.2} dB, tMAE {t0:.5}; stabilized: {p1:.2} dB, tMAE {t1:.5}"
+    );
+    // band by band (the sample stacked to 300 rows) equals whole frames
+    let whole = d.path().join("tall-whole");
+    let banded = d.path().join("tall-banded");
+    tall(&whole, &net, "never");
+    tall(&banded, &net, "32");
+    for f in 3..=7 {
+        let (a, b) = (beauty(&whole, f), beauty(&banded, f));
+        for (u, v) in a.data().iter().zip(b.data()) {
+            assert!(
+                (u - v).abs() <= 1e-5 * u.abs().max(1.0),
+                "frame {f}: {u} against {v}"
+            );
+        }
+    }
 }

@@ -40,6 +40,25 @@ use crate::io::frame::Frame;
 use crate::run::banding::{FrameBand, FrameStats};
 use crate::run::denoiser::{BandDenoiser, Denoised, WindowDenoiser};
 
+/// The temporal pass's settings as model files keep them ([`TemporalStabilizer::new`]).
+#[derive(Clone, Copy, Debug, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StabilizeSettings {
+    /// σ in local RMS of the frame's render noise.
+    pub strength: f32,
+    /// The smallest σ.
+    pub floor: f32,
+    /// The noise box's radius.
+    pub noise_radius: usize,
+}
+
+impl StabilizeSettings {
+    /// The pass these settings describe.
+    pub fn stabilizer(&self) -> TemporalStabilizer {
+        TemporalStabilizer::new(self.strength, self.floor, self.noise_radius)
+    }
+}
+
 /// The temporal pass over results ([module docs](self)).
 #[derive(Clone, Debug)]
 pub struct TemporalStabilizer {

@@ -11,6 +11,8 @@ use burn::module::{Module, Param};
 use burn::tensor::{Device, Tensor};
 use serde::{Deserialize, Serialize};
 
+use radn_core::post::stabilize::StabilizeSettings;
+
 use crate::model::ra_block::RobustAverage;
 use crate::oidn_unet::feature_warp::{to_centre, WindowMotion};
 use crate::oidn_unet::{EncoderLevels, OidnUnet};
@@ -40,6 +42,10 @@ pub struct TemporalConfig {
     /// as rendered. Applied at inference; the blocks train on windows as rendered.
     #[serde(default = "one_frame", skip_serializing_if = "is_one_frame")]
     pub input_frames: usize,
+    /// The temporal pass over the network's results (each frame's result averaged with its
+    /// aligned neighbours' where they agree within its render noise); `None`: off.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub stabilize: Option<StabilizeSettings>,
 }
 
 /// [`TemporalConfig::input_frames`] of model files that do not name it: the centre alone.
@@ -337,6 +343,7 @@ mod tests {
                 warp: Default::default(),
                 aux: Default::default(),
                 input_frames: 1,
+                stabilize: None,
             },
             &device,
         )
@@ -391,6 +398,7 @@ mod tests {
                     warp: Default::default(),
                     aux: Default::default(),
                     input_frames,
+                    stabilize: None,
                 },
                 &device,
             )
@@ -411,6 +419,7 @@ mod tests {
         let cleaned = TemporalConfig {
             aux: AuxSource::Prefiltered,
             input_frames: 3,
+            stabilize: None,
             ..old
         };
         assert_eq!(
@@ -436,6 +445,7 @@ mod tests {
                 warp: Default::default(),
                 aux: Default::default(),
                 input_frames: 1,
+                stabilize: None,
             },
             &device,
         )

@@ -367,6 +367,7 @@ mod tests {
             warp: Default::default(),
             aux: Default::default(),
             input_frames: 1,
+            stabilize: None,
         };
         TemporalUnet::convert(unet, config, &device)
             .unwrap()

@@ -116,7 +116,12 @@ mod tests {
             color_confidence: Some(0.6),
             warp: Default::default(),
             aux: Default::default(),
-            input_frames: 1,
+            input_frames: 3,
+            stabilize: Some(radn_core::post::stabilize::StabilizeSettings {
+                strength: 0.6,
+                floor: 0.0005,
+                noise_radius: 2,
+            }),
         };
         let net = TemporalUnet::convert(unet, config.clone(), &device).unwrap();
         // open the gates so the blocks' weights matter

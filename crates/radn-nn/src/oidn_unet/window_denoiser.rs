@@ -17,6 +17,7 @@ use radn_core::align::warp::Resampling;
 use radn_core::align::{align_bands, align_window, AlignParams, AlignedWindow};
 use radn_core::error::{Error, Result};
 use radn_core::io::frame::Frame;
+use radn_core::post::stabilize::{StabilizeSettings, TemporalStabilizer};
 use radn_core::run::banding::{FrameBand, FrameStats, ALIGNMENT_EDGE_ROWS};
 use radn_core::run::denoiser::{BandDenoiser, BandFeatures, Denoised, WindowDenoiser};
 use radn_core::Plane;
@@ -51,6 +52,7 @@ pub struct TemporalDenoiser {
     warp: WarpSpace,
     prefilter: Option<AuxPrefilter>,
     input_frames: usize,
+    stabilize: Option<StabilizeSettings>,
     cache: Mutex<LevelCache>,
 }
 
@@ -86,6 +88,7 @@ impl TemporalDenoiser {
             warp: config.warp,
             prefilter,
             input_frames: config.input_frames,
+            stabilize: config.stabilize,
             cache: Mutex::default(),
         }
     }
@@ -95,6 +98,11 @@ impl TemporalDenoiser {
     pub fn with_tile_pixels(mut self, pixels: usize) -> Self {
         self.tile_pixels = pixels.max(ALIGNMENT * ALIGNMENT);
         self
+    }
+
+    /// The temporal pass over the results the model asks for, if any.
+    pub fn stabilizer(&self) -> Option<TemporalStabilizer> {
+        self.stabilize.map(|s| s.stabilizer())
     }
 
     /// Which model runs, for the run's summary line.
@@ -112,7 +120,9 @@ impl TemporalDenoiser {
             match self.input_frames {
                 1 => String::new(),
                 n => format!(", input averaged over {n}"),
-            },
+            } + &self.stabilize.map_or(String::new(), |s| {
+                format!(", results stabilized at {}", s.strength)
+            }),
             c.oidn_version,
             match self.warp {
                 WarpSpace::Images => "images",

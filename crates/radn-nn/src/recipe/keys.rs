@@ -4,7 +4,7 @@
 use radn_core::align::warp::Resampling;
 use radn_core::setting::{Positive, Setting};
 
-use super::{Recipe, StabilizeRecipe};
+use super::{Recipe, StabilizeSettings};
 use crate::infer::guide_mix::{MixGuide, OutlierRamp};
 use crate::infer::input_blend::InputBlend;
 
@@ -209,7 +209,7 @@ impl Recipe {
             "stabilize" => {
                 let base = self.stabilize.unwrap_or(super::tuned::STABILIZE);
                 self.stabilize =
-                    off_or(value)?.map(|strength| StabilizeRecipe { strength, ..base });
+                    off_or(value)?.map(|strength| StabilizeSettings { strength, ..base });
             }
             "stabilize.floor" | "stabilize.noise-radius" => {
                 let Some(s) = self.stabilize.as_mut() else {

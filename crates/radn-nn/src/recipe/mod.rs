@@ -42,7 +42,7 @@ pub struct Recipe {
     pub guide_mix: GuideMixRecipe,
     /// The temporal pass over the results; `None`: no pass.
     #[serde(default, skip_serializing_if = "Option::is_none")]
-    pub stabilize: Option<StabilizeRecipe>,
+    pub stabilize: Option<StabilizeSettings>,
 }
 
 /// Alignment's appearance and sampled-buffer confidence terms.
@@ -78,27 +78,7 @@ pub struct GuideMixRecipe {
 }
 
 /// The temporal pass over the results ([`radn_core::post::stabilize::TemporalStabilizer`]).
-#[derive(Clone, Copy, Debug, PartialEq, Serialize, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct StabilizeRecipe {
-    /// σ in local RMS of the frame's render noise.
-    pub strength: f32,
-    /// The smallest σ.
-    pub floor: f32,
-    /// The noise box's radius.
-    pub noise_radius: usize,
-}
-
-impl StabilizeRecipe {
-    /// The pass these settings describe.
-    pub fn stabilizer(&self) -> radn_core::post::stabilize::TemporalStabilizer {
-        radn_core::post::stabilize::TemporalStabilizer::new(
-            self.strength,
-            self.floor,
-            self.noise_radius,
-        )
-    }
-}
+pub use radn_core::post::stabilize::StabilizeSettings;
 
 /// The tuned values: the one place they live. Chosen on validation sets
 /// (`docs/research/guided.md`, `docs/research/detail.md`).
@@ -123,7 +103,7 @@ mod tuned {
         from: 0.03,
         to: 0.1,
     };
-    pub const STABILIZE: StabilizeRecipe = StabilizeRecipe {
+    pub const STABILIZE: StabilizeSettings = StabilizeSettings {
         strength: 0.3,
         floor: 0.0005,
         noise_radius: 2,

@@ -241,7 +241,8 @@ pub fn run(a: Args) -> Result<()> {
                 Setting::Value(t) => d = d.with_tile_pixels(t.saturating_mul(t)),
             }
             println!("radn: temporal U-Net path: {}", d.summary());
-            (Box::new(d), None, None)
+            let stabilize = d.stabilizer();
+            (Box::new(d), None, stabilize)
         }
         Method::Network => {
             let chosen = choose_path(a.model.as_deref(), &a.guide, a.oidn_threads, a.device)?;

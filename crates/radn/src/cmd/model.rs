@@ -64,6 +64,10 @@ pub struct ConvertArgs {
     /// input before the encoder (1: the centre as rendered).
     #[arg(long, default_value_t = 1)]
     pub input_frames: usize,
+    /// The temporal pass over the results at this strength (σ in local RMS of each frame's
+    /// render noise; the guided recipe's floor and noise box); off when not given.
+    #[arg(long, value_name = "STRENGTH")]
+    pub stabilize: Option<f32>,
     /// The model file to write (a new file: nothing is replaced).
     #[arg(short, long, value_name = "FILE")]
     pub out: PathBuf,
@@ -93,6 +97,12 @@ fn convert(a: ConvertArgs) -> Result<()> {
             _ => AuxSource::Rendered,
         },
         input_frames: a.input_frames,
+        stabilize: a.stabilize.map(|strength| {
+            let tuned = radn_nn::recipe::Recipe::for_kind(true)
+                .stabilize
+                .expect("the guided recipe has a temporal pass");
+            radn_core::post::stabilize::StabilizeSettings { strength, ..tuned }
+        }),
     };
     let net = TemporalUnet::convert(unet, config, &device)
         .with_context(|| format!("converting '{}'", a.unet.display()))?;
