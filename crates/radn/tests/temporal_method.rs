@@ -422,23 +422,6 @@ fn an_input_averaged_over_the_window_comes_closer_to_the_reference() {
 fn a_stabilized_model_flickers_less_and_comes_closer_to_the_reference() {
     let d = tempfile::tempdir().unwrap();
     let input = common::tall(d.path());
-    let tall = |out: &Path, net: &Path, bands: &str| {
-        let r = denoise_from(
-            &input,
-            out,
-            "3-7",
-            &[
-                "--method",
-                "temporal",
-                "--model",
-                net.to_str().unwrap(),
-                "--bands",
-                bands,
-            ],
-        );
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        String::from_utf8_lossy(&r.stdout).into_owned()
-    };
     let run = |name: &str, stabilize: Option<StabilizeSettings>| {
         let net = d.path().join(format!("{name}.st"));
         model_full(&net, 0.0, vec![0, 1], WarpSpace::Features, 1, stabilize);
@@ -495,17 +478,5 @@ fn a_stabilized_model_flickers_less_and_comes_closer_to_the_reference() {
         "without: {p0:.2} dB, tMAE {t0:.5}; stabilized: {p1:.2} dB, tMAE {t1:.5}"
     );
     // band by band (the sample stacked to 300 rows) equals whole frames
-    let whole = d.path().join("tall-whole");
-    let banded = d.path().join("tall-banded");
-    tall(&whole, &net, "never");
-    tall(&banded, &net, "32");
-    for f in 3..=7 {
-        let (a, b) = (beauty(&whole, f), beauty(&banded, f));
-        for (u, v) in a.data().iter().zip(b.data()) {
-            assert!(
-                (u - v).abs() <= 1e-5 * u.abs().max(1.0),
-                "frame {f}: {u} against {v}"
-            );
-        }
-    }
+    bands_equal_whole(d.path(), &input, &net, 9);
 }
