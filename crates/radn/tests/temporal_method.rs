@@ -372,6 +372,18 @@ fn prefiltered_auxiliaries_give_the_clean_auxiliary_unet_with_closed_gates_and_b
     }
 }
 
+/// `radn denoise --method temporal --model net` on frames 3-7 of the sample into `out`: what it
+/// printed.
+fn temporal_on_sample(out: &Path, net: &Path) -> String {
+    let r = denoise(
+        out,
+        "3-7",
+        &["--method", "temporal", "--model", net.to_str().unwrap()],
+    );
+    assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
+    String::from_utf8_lossy(&r.stdout).into_owned()
+}
+
 /// The centre's input averaged over its aligned 3-frame window (gates closed: the U-Net on
 /// that input) carries the window's samples into the U-Net: on the sample's noisiest level
 /// every frame of 3-7 comes closer to the reference, by at least 0.2 dB on average (measured
@@ -383,13 +395,7 @@ fn an_input_averaged_over_the_window_comes_closer_to_the_reference() {
         let net = d.path().join(format!("in{input_frames}.st"));
         model_averaging(&net, 0.0, vec![0, 1], WarpSpace::Features, input_frames);
         let out = d.path().join(format!("out{input_frames}"));
-        let r = denoise(
-            &out,
-            "3-7",
-            &["--method", "temporal", "--model", net.to_str().unwrap()],
-        );
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        let said = String::from_utf8_lossy(&r.stdout).into_owned();
+        let said = temporal_on_sample(&out, &net);
         assert_eq!(
             said.contains("input averaged over 3"),
             input_frames == 3,
@@ -426,13 +432,7 @@ fn a_stabilized_model_flickers_less_and_comes_closer_to_the_reference() {
         let net = d.path().join(format!("{name}.st"));
         model_full(&net, 0.0, vec![0, 1], WarpSpace::Features, 1, stabilize);
         let out = d.path().join(name);
-        let r = denoise(
-            &out,
-            "3-7",
-            &["--method", "temporal", "--model", net.to_str().unwrap()],
-        );
-        assert!(r.status.success(), "{}", String::from_utf8_lossy(&r.stderr));
-        let said = String::from_utf8_lossy(&r.stdout).into_owned();
+        let said = temporal_on_sample(&out, &net);
         assert_eq!(
             said.contains("results stabilized"),
             stabilize.is_some(),

@@ -448,18 +448,22 @@ mod tests {
         warp_bands(&[Band::whole(src)], Band::whole(&flow), resampling).remove(0)
     }
 
+    /// `out` is `src` moved `dx` pixels left and `dy` down, exactly, wherever both hold it.
+    fn assert_copied(out: &Plane, src: &Plane, dx: usize, dy: usize) {
+        for y in dy..src.height() {
+            for x in 0..src.width() - dx {
+                for c in 0..src.channels() {
+                    assert_eq!(out.get(x, y, c), src.get(x + dx, y - dy, c), "{x},{y}");
+                }
+            }
+        }
+    }
+
     #[test]
     fn nearest_takes_the_closest_pixel_unblended() {
         let src = Plane::from_fn(16, 12, 2, |x, y, c| (x * 7 + y * 13 + c * 101) as f32);
         // 2.4 rounds to 2, -1.6 to -2: every value is a source pixel's, exactly
-        let out = shifted(&src, 2.4, -1.6, Resampling::Nearest);
-        for y in 2..12 {
-            for x in 0..13 {
-                for c in 0..2 {
-                    assert_eq!(out.get(x, y, c), src.get(x + 2, y - 2, c), "{x},{y}");
-                }
-            }
-        }
+        assert_copied(&shifted(&src, 2.4, -1.6, Resampling::Nearest), &src, 2, 2);
         let out = shifted(&src, 0.6, 0.5, Resampling::Nearest);
         assert_eq!(out.get(4, 4, 1), src.get(5, 5, 1));
     }
@@ -467,14 +471,12 @@ mod tests {
     #[test]
     fn catmull_rom_copies_whole_pixel_shifts_and_reproduces_ramps() {
         let src = Plane::from_fn(16, 12, 2, |x, y, c| (x * 7 + y * 13 + c * 101) as f32);
-        let out = shifted(&src, 3.0, -2.0, Resampling::CatmullRom);
-        for y in 2..12 {
-            for x in 0..13 {
-                for c in 0..2 {
-                    assert_eq!(out.get(x, y, c), src.get(x + 3, y - 2, c));
-                }
-            }
-        }
+        assert_copied(
+            &shifted(&src, 3.0, -2.0, Resampling::CatmullRom),
+            &src,
+            3,
+            2,
+        );
         // a linear ramp at a subpixel shift, away from the clamped edges: exactly the ramp
         let ramp = Plane::from_fn(16, 12, 1, |x, y, _| 0.5 * x as f32 - 0.25 * y as f32);
         let out = shifted(&ramp, 0.3, 0.7, Resampling::CatmullRom);
