@@ -306,34 +306,31 @@ impl TemporalDenoiser {
 }
 
 impl TemporalDenoiser {
-    /// `centre` (a frame or a band) with its beauty and AOVs averaged over the middle
-    /// `input_frames` frames of its aligned window `win`; `None` when the model reads the
-    /// centre as rendered.
-    fn input_mean(&self, centre: &Frame, win: &AlignedWindow) -> Option<Frame> {
-        if self.input_frames <= 1 {
-            return None;
-        }
-        let (color, aovs) = window_mean(win, self.input_frames);
-        let mut f = centre.clone();
-        f.color = color;
-        for (a, p) in f.aovs.iter_mut().zip(aovs) {
-            a.plane = p;
-        }
-        Some(f)
+    /// The beauty and AOVs of the centre averaged over the middle `input_frames` frames of
+    /// its aligned window `win`; `None` when the model reads the centre as rendered.
+    fn input_mean(&self, win: &AlignedWindow) -> Option<(Plane, Vec<Plane>)> {
+        (self.input_frames > 1).then(|| window_mean(win, self.input_frames))
     }
 }
 
-/// `win` with its centre's beauty and AOVs those of `mean`, where given.
-fn with_centre(mut win: AlignedWindow, mean: Option<&Frame>) -> AlignedWindow {
-    if let Some(m) = mean {
+/// `win` with its centre's beauty and AOVs replaced by `mean`, where given.
+fn with_centre(mut win: AlignedWindow, mean: Option<(Plane, Vec<Plane>)>) -> AlignedWindow {
+    if let Some((color, aovs)) = mean {
         let r = win.radius();
-        let c = &mut win.frames[r];
-        c.color = m.color.clone();
-        for (p, a) in c.aovs.iter_mut().zip(&m.aovs) {
-            *p = a.plane.clone();
-        }
+        win.frames[r].color = color;
+        win.frames[r].aovs = aovs;
     }
     win
+}
+
+/// `centre` (a frame) with its beauty and AOVs replaced by `mean`: what its encoder reads.
+fn centre_with((color, aovs): (Plane, Vec<Plane>), centre: &Frame) -> Frame {
+    let mut f = centre.clone();
+    f.color = color;
+    for (a, p) in f.aovs.iter_mut().zip(aovs) {
+        a.plane = p;
+    }
+    f
 }
 
 /// Frame (or band) `f` with the albedo and normal its features hold cleaned
@@ -413,13 +410,16 @@ impl WindowDenoiser for TemporalDenoiser {
             .chain(centre.aovs.iter().map(|a| &a.plane))
             .map(|p| self.filter.unet().autoexposure(p))
             .collect();
-        let mean = self.input_mean(centre, &win);
+        let mean = self.input_mean(&win);
         match self.warp {
             WarpSpace::Images => {
-                let win = with_centre(win, mean.as_ref());
+                let win = with_centre(win, mean);
                 self.denoise_aligned(&win, centre, &scales, 0..centre.height())
             }
-            WarpSpace::Features => self.denoise_warped(window, &win, mean.as_ref(), &scales),
+            WarpSpace::Features => {
+                let mean = mean.map(|m| centre_with(m, centre));
+                self.denoise_warped(window, &win, mean.as_ref(), &scales)
+            }
         }
     }
 
@@ -498,8 +498,8 @@ impl BandDenoiser for TemporalDenoiser {
         };
         let band = window[self.radius()].expect("the centre band is present");
         let win = align_bands(&window, &self.align);
-        let mean = self.input_mean(band.frame, &win);
-        let win = with_centre(win, mean.as_ref());
+        let mean = self.input_mean(&win);
+        let win = with_centre(win, mean);
         // every band at the exposure of the whole centre frame's planes
         let scales: Vec<f32> = centre
             .autoexposure
