@@ -142,6 +142,10 @@ pub struct FinetuneConfig {
     /// in the model file; training does not see it).
     #[serde(default)]
     pub stabilize: Option<radn_core::post::stabilize::StabilizeSettings>,
+    /// A learned average of the window's input at the centre frame
+    /// ([`TemporalConfig::input_blend`], kept in the model file), trained with the blocks.
+    #[serde(default)]
+    pub input_blend: bool,
 }
 
 fn default_input_frames() -> usize {
@@ -256,12 +260,14 @@ impl Finetune {
                 train.manifest.aux_prefilters, val.manifest.aux_prefilters
             )));
         }
-        if config.input_frames > 1 && train.manifest.resampling != Resampling::Nearest {
+        let averaged = (config.input_frames > 1)
+            .then(|| format!("input_frames = {}", config.input_frames))
+            .or(config.input_blend.then(|| "input_blend".to_string()));
+        if let Some(what) = averaged.filter(|_| train.manifest.resampling != Resampling::Nearest) {
             return Err(NnError::Config(format!(
-                "input_frames = {}: the centre's mean is made of nearest-pixel samples at \
+                "{what}: the centre's input average is made of nearest-pixel samples at \
                  inference, and these tiles were aligned with {} samples (prepare them with \
                  --resampling nearest)",
-                config.input_frames,
                 train.manifest.resampling.name()
             )));
         }
@@ -280,6 +286,7 @@ impl Finetune {
             },
             input_frames: config.input_frames,
             stabilize: config.stabilize,
+            input_blend: config.input_blend,
         };
         let net = TemporalUnet::convert(unet, temporal, device)
             .map_err(|e| NnError::Config(e.to_string()))?;
@@ -527,13 +534,15 @@ impl Finetune {
             writeln!(f, "step,kind,loss,psnr,gates").map_err(err)?;
         }
         let psnr = psnr.map_or(String::new(), |p| format!("{p:.3}"));
-        // at validations, how open each level's gate is (mean |gate|, levels in order)
+        // at validations, how open each level's gate is (mean |gate|, levels in order), then
+        // the learned input average's ("in=")
         let gates = if kind == "val" {
-            self.net
-                .temporal
+            let temporal = &self.net.temporal;
+            temporal
                 .openness()
                 .iter()
                 .map(|g| format!("{g:.4}"))
+                .chain(temporal.input_openness().map(|g| format!("in={g:.4}")))
                 .collect::<Vec<_>>()
                 .join(" ")
         } else {

@@ -64,6 +64,7 @@ fn model_full(
             aux: Default::default(),
             input_frames,
             stabilize,
+            input_blend: false,
         },
         &device,
     )

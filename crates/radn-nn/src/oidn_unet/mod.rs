@@ -11,6 +11,7 @@ pub mod feature_warp;
 pub mod filter;
 pub mod guide_filters;
 pub mod import;
+pub mod input_blend;
 pub mod input_mean;
 pub mod library;
 pub mod prefilter;

@@ -14,7 +14,9 @@ use serde::{Deserialize, Serialize};
 use radn_core::post::stabilize::StabilizeSettings;
 
 use crate::model::ra_block::RobustAverage;
+use crate::oidn_unet::config::Input;
 use crate::oidn_unet::feature_warp::{to_centre, WindowMotion};
+use crate::oidn_unet::input_blend::InputBlend;
 use crate::oidn_unet::{EncoderLevels, OidnUnet};
 
 /// Where the converted network blends its window: the window's length and the encoder levels
@@ -46,6 +48,10 @@ pub struct TemporalConfig {
     /// aligned neighbours' where they agree within its render noise); `None`: off.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub stabilize: Option<StabilizeSettings>,
+    /// A learned average of the window's input at the centre frame ([`InputBlend`]) in place
+    /// of the fixed mean of [`TemporalConfig::input_frames`]; trained with the blocks.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub input_blend: bool,
 }
 
 /// [`TemporalConfig::input_frames`] of model files that do not name it: the centre alone.
@@ -130,10 +136,12 @@ impl LevelBlend {
     }
 }
 
-/// The trainable temporal layers, one blend per configured level.
+/// The trainable temporal layers: one blend per configured level, and the learned input
+/// average where the configuration asks for it.
 #[derive(Module, Debug)]
 pub struct TemporalLayers {
     blends: Vec<LevelBlend>,
+    input: Option<InputBlend>,
 }
 
 impl TemporalLayers {
@@ -144,6 +152,11 @@ impl TemporalLayers {
             .iter()
             .map(|b| b.gate.val().abs().mean().into_scalar::<f32>())
             .collect()
+    }
+
+    /// How open the learned input average's gate is, where there is one.
+    pub fn input_openness(&self) -> Option<f32> {
+        self.input.as_ref().map(InputBlend::openness)
     }
 }
 
@@ -172,6 +185,12 @@ pub enum TemporalError {
         /// The encoder's deepest level.
         last: usize,
     },
+    /// A learned input average on a network whose input is not an HDR beauty.
+    #[error("a learned input average blends HDR colour, and {0} does not read an HDR beauty")]
+    InputBlendNotHdr(String),
+    /// Both a fixed input mean and a learned input average.
+    #[error("an input mean over {0} frames and a learned input average: choose one")]
+    TwoInputAverages(usize),
     /// The input mean's frames are not odd or not within the window.
     #[error("an input mean over {input} frames: it must be odd and at most the window's {frames}")]
     InputFrames {
@@ -199,6 +218,14 @@ impl TemporalUnet {
                 frames: config.frames,
             });
         }
+        if config.input_blend && config.input_frames > 1 {
+            return Err(TemporalError::TwoInputAverages(config.input_frames));
+        }
+        if config.input_blend && !matches!(unet.config().input, Input::Beauty { hdr: true, .. }) {
+            return Err(TemporalError::InputBlendNotHdr(
+                unet.config().weights.clone(),
+            ));
+        }
         let channels = unet.level_channels();
         let last = channels.len() - 1;
         if config.levels.iter().any(|&l| l > last) || !config.levels.windows(2).all(|p| p[0] < p[1])
@@ -213,9 +240,12 @@ impl TemporalUnet {
             .iter()
             .map(|&l| LevelBlend::new(channels[l], config.frames, device))
             .collect();
+        let input = config
+            .input_blend
+            .then(|| InputBlend::new(channels[0], device));
         Ok(Self {
             unet,
-            temporal: TemporalLayers { blends },
+            temporal: TemporalLayers { blends, input },
             config,
         })
     }
@@ -228,7 +258,13 @@ impl TemporalUnet {
             let c = b.gate.val().dims()[0];
             b.gate = Param::from_tensor(Tensor::full([c], value, &device));
         }
+        self.temporal.input = self.temporal.input.map(|i| i.with_gate(value));
         self
+    }
+
+    /// The learned input average, where the configuration has one.
+    pub fn input_blend(&self) -> Option<&InputBlend> {
+        self.temporal.input.as_ref()
     }
 
     /// Each blended level with its block and its gate's values (for the CPU path).
@@ -299,6 +335,10 @@ impl TemporalUnet {
     /// The network on a window of processed frames `[batch · frames, channels, h, w]`: the
     /// centre frame's output `[batch, 3, h, w]` before OIDN's output processing.
     pub fn forward(&self, window: Tensor<4>, motion: Option<&WindowMotion>) -> Tensor<4> {
+        let window = match &self.temporal.input {
+            Some(input) => input.forward(window, self.config.frames),
+            None => window,
+        };
         self.unet.decode(self.blend(self.encode(window), motion))
     }
 }
@@ -330,6 +370,12 @@ mod tests {
 
     #[test]
     fn the_converted_network_is_the_per_frame_unet_until_its_gates_open() {
+        for input_blend in [false, true] {
+            is_the_per_frame_unet_until_its_gates_open(input_blend);
+        }
+    }
+
+    fn is_the_per_frame_unet_until_its_gates_open(input_blend: bool) {
         let device = Device::flex();
         let (t, h, w) = (5, 32, 48);
         let x = window(t, h, w, &device);
@@ -344,6 +390,7 @@ mod tests {
                 aux: Default::default(),
                 input_frames: 1,
                 stabilize: None,
+                input_blend,
             },
             &device,
         )
@@ -367,8 +414,29 @@ mod tests {
                 .unwrap();
             assert_eq!(got, want, "motion {:?}", m.is_some());
         }
-        // open gates change the result
+        // open gates change the result (the input average's alone, where there is one)
         let mut open = net;
+        if input_blend {
+            let only_input = TemporalUnet {
+                unet: open.unet.clone(),
+                temporal: TemporalLayers {
+                    blends: open.temporal.blends.clone(),
+                    input: open.temporal.input.clone().map(|i| i.with_gate(0.5)),
+                },
+                config: open.config.clone(),
+            };
+            let got = only_input.forward(x.clone(), None).into_data();
+            let diff = got
+                .try_to_vec::<f32>()
+                .unwrap()
+                .iter()
+                .zip(&want)
+                .fold(0.0f32, |m, (a, b)| m.max((a - b).abs()));
+            assert!(
+                diff > 1e-4,
+                "the open input average changed nothing ({diff})"
+            );
+        }
         for b in &mut open.temporal.blends {
             let c = b.gate.dims()[0];
             b.gate = Param::from_tensor(Tensor::full([c], 0.5, &device));
@@ -399,6 +467,7 @@ mod tests {
                     aux: Default::default(),
                     input_frames,
                     stabilize: None,
+                    input_blend: false,
                 },
                 &device,
             )
@@ -411,6 +480,17 @@ mod tests {
         assert!(bad_mean(3, vec![1], 5).contains("at most the window's 3"));
         assert!(bad(5, vec![5]).contains("levels 0 to 4"));
         assert!(bad(5, vec![2, 1]).contains("in order"));
+        let both = TemporalUnet::convert(
+            unet(&device),
+            TemporalConfig {
+                input_blend: true,
+                ..toml::from_str("frames = 5\nlevels = [1]\ninput_frames = 3\n").unwrap()
+            },
+            &device,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(both.contains("choose one"), "{both}");
         // model files written before the field existed read as rendered auxiliaries
         let old: TemporalConfig = toml::from_str("frames = 5\nlevels = [1]\n").unwrap();
         assert_eq!(old.aux, AuxSource::Rendered);
@@ -446,6 +526,7 @@ mod tests {
                 aux: Default::default(),
                 input_frames: 1,
                 stabilize: None,
+                input_blend: true,
             },
             &device,
         )
@@ -458,5 +539,13 @@ mod tests {
             let g = g.into_data().try_to_vec::<f32>().unwrap();
             assert!(g.iter().any(|v| v.abs() > 1e-9), "{g:?}");
         }
+        let input = net.temporal.input.as_ref().expect("an input average");
+        let g = input
+            .gate
+            .val()
+            .grad(&grads)
+            .expect("the input gate is trained");
+        let g = g.into_data().try_to_vec::<f32>().unwrap();
+        assert!(g[0].abs() > 1e-9, "{g:?}");
     }
 }

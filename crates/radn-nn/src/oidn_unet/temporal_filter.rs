@@ -11,6 +11,7 @@ use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::blocked::Blocked;
 use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::filter::{FilterError, Tile, UnetFilter, UnetImages};
+use crate::oidn_unet::input_blend::{HostInputBlend, InputBlend};
 use crate::oidn_unet::temporal::TemporalUnet;
 
 /// One blended level on the host: its block and its gate's per-channel values.
@@ -55,6 +56,7 @@ impl MotionLevels {
 pub struct TemporalFilter {
     filter: UnetFilter,
     blends: Vec<HostBlend>,
+    input: Option<HostInputBlend>,
     frames: usize,
 }
 
@@ -72,8 +74,42 @@ impl TemporalFilter {
                     gate,
                 })
                 .collect(),
+            input: net.input_blend().map(InputBlend::host),
             frames: net.config().frames,
         }
+    }
+
+    /// Each frame's share of the centre's input where the network learned an input average
+    /// ([`InputBlend`]): read from the window's images (aligned, of one size) processed at
+    /// input scale `scale`; `None` when it reads the centre as rendered.
+    pub fn input_shares(
+        &self,
+        window: &[UnetImages],
+        scale: f32,
+    ) -> Result<Option<Vec<Vec<f32>>>, FilterError> {
+        let Some(blend) = &self.input else {
+            return Ok(None);
+        };
+        let processed = window
+            .iter()
+            .map(|images| {
+                let planes = self.filter.planes(images)?;
+                let (w, h) = (planes[0].0.width(), planes[0].0.height());
+                let mut out = Vec::with_capacity(3 * planes.len() * w * h);
+                for (plane, processing) in planes {
+                    for c in 0..3 {
+                        out.extend(plane.channel(c).iter().map(|&v| processing.input(v, scale)));
+                    }
+                }
+                Ok(out)
+            })
+            .collect::<Result<Vec<_>, FilterError>>()?;
+        let first = window[0].color.expect("a beauty model reads colour");
+        Ok(Some(blend.shares(
+            &processed,
+            first.width(),
+            first.height(),
+        )))
     }
 
     /// Frames per window.
@@ -334,13 +370,19 @@ impl TemporalFilter {
             .map(|b| b.ra.centre_reach() << b.level)
             .max()
             .unwrap_or(0);
-        self.filter.config().layers.reach() + blocks
+        let input = if self.input.is_some() {
+            InputBlend::reach()
+        } else {
+            0
+        };
+        self.filter.config().layers.reach() + blocks + input
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::oidn_unet::input_blend::HostInputBlend;
     use crate::oidn_unet::temporal::TemporalConfig;
     use crate::oidn_unet::transfer::{AUX_ALBEDO, AUX_NORMAL, HDR_BEAUTY};
     use burn::tensor::{Device, Tensor, TensorData};
@@ -355,6 +397,11 @@ mod tests {
     /// OIDN's standard U-Net converted over 3 frames with blocks at `levels` (their weights
     /// from `seed`) and every gate at `gate`.
     fn converted(levels: Vec<usize>, seed: u64, gate: f32) -> TemporalUnet {
+        converted_with(levels, seed, gate, false)
+    }
+
+    /// [`converted`], with a learned input average where `input_blend`.
+    fn converted_with(levels: Vec<usize>, seed: u64, gate: f32, input_blend: bool) -> TemporalUnet {
         let device = Device::flex();
         let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
             .join("../../models/oidn-rt_hdr_alb_nrm.safetensors");
@@ -368,6 +415,7 @@ mod tests {
             aux: Default::default(),
             input_frames: 1,
             stabilize: None,
+            input_blend,
         };
         TemporalUnet::convert(unet, config, &device)
             .unwrap()
@@ -471,6 +519,41 @@ mod tests {
         assert!(moved > 1e-3, "the open gates changed nothing ({moved})");
         let single = closed.unet().run(&window[1], Some(scale)).unwrap();
         assert_eq!(per_frame.channel(0), single.channel(0));
+    }
+
+    /// With a learned input average, the CPU path (the shares applied to the window's linear
+    /// colour, then the network on that centre) equals burn's forward; closed, it keeps the
+    /// centre as rendered.
+    #[test]
+    fn the_cpu_input_average_equals_burns() {
+        // frames on the U-Net's 16-pixel grid: burn's blend then sees no padding, which the
+        // CPU path (computed on the frame itself) never reads
+        let net = converted_with(vec![0, 2], 4, 0.7, true);
+        let frames = Frames::new(48, 32);
+        let window = frames.window();
+        let filter = TemporalFilter::new(&net);
+        let scale = filter.unet().autoexposure(&frames.colors[1]);
+        let shares = filter.input_shares(&window, scale).unwrap().unwrap();
+        for i in [0, 700, 1535] {
+            let sum: f32 = shares.iter().map(|s| s[i]).sum();
+            assert!((sum - 1.0).abs() < 1e-5, "shares sum to {sum}");
+            assert!(shares.iter().all(|s| (0.0..=1.0).contains(&s[i])));
+        }
+        let colours: Vec<&Plane> = frames.colors.iter().collect();
+        let blended = HostInputBlend::apply(&colours, &shares);
+        let mut averaged = window.clone();
+        averaged[1].color = Some(&blended);
+        let host = filter.run(&averaged, scale, usize::MAX).unwrap();
+        let y = net.forward(frames.processed(scale, 48, 32), None);
+        let worst = from_burn(&host, y, scale);
+        assert!(worst < 1e-4, "largest difference {worst}");
+        // the blend moved the centre's input
+        assert!(largest(&blended, &frames.colors[1]) > 1e-2);
+        // a shut gate: every share on the centre, the input as rendered, bit for bit
+        let shut = TemporalFilter::new(&net.with_gates(0.0));
+        let shares = shut.input_shares(&window, scale).unwrap().unwrap();
+        let kept = HostInputBlend::apply(&colours, &shares);
+        assert_eq!(kept.data(), frames.colors[1].data());
     }
 
     /// Tiles overlapping by the blocks' reach as well as the U-Net's give the whole frame's

@@ -122,6 +122,7 @@ mod tests {
                 floor: 0.0005,
                 noise_radius: 2,
             }),
+            input_blend: false,
         };
         let net = TemporalUnet::convert(unet, config.clone(), &device).unwrap();
         // open the gates so the blocks' weights matter
@@ -141,6 +142,23 @@ mod tests {
             ),
             &device,
         );
+        let a = net.forward(x.clone(), None).into_data();
+        let b = back.forward(x.clone(), None).into_data();
+        assert_eq!(a.as_slice::<f32>().unwrap(), b.as_slice::<f32>().unwrap());
+        // a learned input average is kept with its gate
+        let blended = TemporalConfig {
+            input_frames: 1,
+            input_blend: true,
+            ..config
+        };
+        let net = TemporalUnet::convert(back.unet.clone(), blended.clone(), &device)
+            .unwrap()
+            .with_gates(0.5);
+        let file = dir.path().join("blend.safetensors");
+        save(&net, &file).unwrap();
+        let back = load(&file, &device).unwrap();
+        assert_eq!(back.config(), &blended);
+        assert_eq!(back.temporal.input_openness(), Some(0.5));
         let a = net.forward(x.clone(), None).into_data();
         let b = back.forward(x, None).into_data();
         assert_eq!(a.as_slice::<f32>().unwrap(), b.as_slice::<f32>().unwrap());

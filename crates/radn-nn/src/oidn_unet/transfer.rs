@@ -108,6 +108,31 @@ impl Transfer {
 }
 
 impl Transfer {
+    /// [`Transfer::forward`] as tensor operations (differentiable) on values already
+    /// sanitised (not NaN, within the transfer's range), for blends made in linear space.
+    pub fn forward_tensor<const D: usize>(self, y: Tensor<D>) -> Tensor<D> {
+        match self {
+            Transfer::Linear => y,
+            // each branch reads its argument clamped to its own range, so that the branches
+            // not taken have finite gradients (a power's is infinite at zero)
+            Transfer::Srgb => {
+                use srgb::*;
+                let low = y.clone() * A;
+                let high = y.clone().clamp_min(Y0).powf_scalar(C) * B + D;
+                high.mask_where(y.lower_equal_elem(Y0), low)
+            }
+            Transfer::Pu => {
+                use pu::*;
+                let low = y.clone() * A;
+                let mid = y.clone().clamp(Y0, Y1).powf_scalar(C) * B + D;
+                let high = (y.clone().clamp_min(Y1) + F).log() * E + G;
+                high.mask_where(y.clone().lower_equal_elem(Y1), mid)
+                    .mask_where(y.lower_equal_elem(Y0), low)
+                    * (1.0 / pu_norm())
+            }
+        }
+    }
+
     /// [`Transfer::inverse`] as tensor operations (differentiable), for losses in linear space.
     pub fn inverse_tensor(self, x: Tensor<4>) -> Tensor<4> {
         match self {
@@ -218,6 +243,27 @@ mod tests {
                 let want = t.inverse(v);
                 assert!(
                     (g - want).abs() <= 1e-5 * want.abs().max(1.0),
+                    "{t:?}({v}) = {want}, tensor {g}"
+                );
+            }
+        }
+    }
+
+    #[test]
+    fn the_tensor_forward_is_the_scalar_forward() {
+        use burn::tensor::{Device, TensorData};
+        let values: Vec<f32> = (0..400)
+            .map(|i| (i as f32 / 399.0).powi(4) * 300.0)
+            .collect();
+        let device = Device::flex();
+        for t in [Transfer::Linear, Transfer::Srgb, Transfer::Pu] {
+            let y: Tensor<4> =
+                Tensor::from_data(TensorData::new(values.clone(), [1, 1, 20, 20]), &device);
+            let got = t.forward_tensor(y).into_data().try_to_vec::<f32>().unwrap();
+            for (&v, &g) in values.iter().zip(&got) {
+                let want = t.forward(v);
+                assert!(
+                    (g - want).abs() <= 1e-5 * want.abs().max(1e-3),
                     "{t:?}({v}) = {want}, tensor {g}"
                 );
             }

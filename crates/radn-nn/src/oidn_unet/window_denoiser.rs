@@ -26,6 +26,7 @@ use crate::oidn_unet::config::ALIGNMENT;
 use crate::oidn_unet::cpu::feature_warp::HostMotion;
 use crate::oidn_unet::denoiser::{as_rgb, to_channels};
 use crate::oidn_unet::filter::{UnetImages, DEFAULT_MAX_TILE_PIXELS};
+use crate::oidn_unet::input_blend::HostInputBlend;
 use crate::oidn_unet::input_mean::window_mean;
 use crate::oidn_unet::prefilter::{cleaned_of, AuxPrefilter, CLEAN_AUX_CHANNELS};
 use crate::oidn_unet::temporal::{AuxSource, TemporalConfig, WarpSpace};
@@ -52,6 +53,7 @@ pub struct TemporalDenoiser {
     warp: WarpSpace,
     prefilter: Option<AuxPrefilter>,
     input_frames: usize,
+    input_blend: bool,
     stabilize: Option<StabilizeSettings>,
     cache: Mutex<LevelCache>,
 }
@@ -74,7 +76,7 @@ impl TemporalDenoiser {
         );
         let mut align = AlignParams::default();
         align.confidence.color = config.color_confidence;
-        if config.input_frames > 1 {
+        if config.input_frames > 1 || config.input_blend {
             // the mean's noise stays per pixel (white, as the U-Net was trained on) with
             // nearest-pixel samples; blended samples leave it correlated, which the U-Net
             // keeps as blotches on dark, noisy frames (docs/research/oidn-temporal.md)
@@ -88,6 +90,7 @@ impl TemporalDenoiser {
             warp: config.warp,
             prefilter,
             input_frames: config.input_frames,
+            input_blend: config.input_blend,
             stabilize: config.stabilize,
             cache: Mutex::default(),
         }
@@ -117,9 +120,10 @@ impl TemporalDenoiser {
                 format!(" on {a} and {n}")
             }),
             self.filter.frames(),
-            match self.input_frames {
-                1 => String::new(),
-                n => format!(", input averaged over {n}"),
+            match (self.input_frames, self.input_blend) {
+                (_, true) => ", input averaged as learned".to_string(),
+                (1, false) => String::new(),
+                (n, false) => format!(", input averaged over {n}"),
             } + &self.stabilize.map_or(String::new(), |s| {
                 format!(", results stabilized at {}", s.strength)
             }),
@@ -306,10 +310,43 @@ impl TemporalDenoiser {
 }
 
 impl TemporalDenoiser {
-    /// The beauty and AOVs of the centre averaged over the middle `input_frames` frames of
-    /// its aligned window `win`; `None` when the model reads the centre as rendered.
-    fn input_mean(&self, win: &AlignedWindow) -> Option<(Plane, Vec<Plane>)> {
-        (self.input_frames > 1).then(|| window_mean(win, self.input_frames))
+    /// The beauty and AOVs of the centre averaged over its aligned window `win`: over the
+    /// middle `input_frames` frames, or with the shares the model's learned input average
+    /// gives each frame (read from the window at the beauty's input scale `scale`); `None`
+    /// when the model reads the centre (`centre`, named in errors) as rendered.
+    fn input_mean(
+        &self,
+        win: &AlignedWindow,
+        scale: f32,
+        centre: &Frame,
+    ) -> Result<Option<(Plane, Vec<Plane>)>> {
+        if self.input_frames > 1 {
+            return Ok(Some(window_mean(win, self.input_frames)));
+        }
+        let images: Vec<UnetImages> = win
+            .frames
+            .iter()
+            .map(|f| UnetImages {
+                color: Some(&f.color),
+                albedo: f.albedo.as_ref(),
+                normal: f.normal.as_ref(),
+            })
+            .collect();
+        let shares = self
+            .filter
+            .input_shares(&images, scale)
+            .map_err(|e| Error::Unsupported {
+                path: centre.path.clone(),
+                detail: e.to_string(),
+            })?;
+        Ok(shares.map(|shares| {
+            let blend = |planes: Vec<&Plane>| HostInputBlend::apply(&planes, &shares);
+            let color = blend(win.frames.iter().map(|f| &f.color).collect());
+            let aovs = (0..win.centre().aovs.len())
+                .map(|a| blend(win.frames.iter().map(|f| &f.aovs[a]).collect()))
+                .collect();
+            (color, aovs)
+        }))
     }
 }
 
@@ -410,7 +447,7 @@ impl WindowDenoiser for TemporalDenoiser {
             .chain(centre.aovs.iter().map(|a| &a.plane))
             .map(|p| self.filter.unet().autoexposure(p))
             .collect();
-        let mean = self.input_mean(&win);
+        let mean = self.input_mean(&win, scales[0], centre)?;
         match self.warp {
             WarpSpace::Images => {
                 let win = with_centre(win, mean);
@@ -498,14 +535,14 @@ impl BandDenoiser for TemporalDenoiser {
         };
         let band = window[self.radius()].expect("the centre band is present");
         let win = align_bands(&window, &self.align);
-        let mean = self.input_mean(&win);
-        let win = with_centre(win, mean);
         // every band at the exposure of the whole centre frame's planes
         let scales: Vec<f32> = centre
             .autoexposure
             .iter()
             .map(|bins| self.filter.unet().exposure_of(bins))
             .collect();
+        let mean = self.input_mean(&win, scales[0], band.frame)?;
+        let win = with_centre(win, mean);
         self.denoise_aligned(&win, band.frame, &scales, out)
     }
 }

@@ -64,6 +64,10 @@ pub struct ConvertArgs {
     /// input before the encoder (1: the centre as rendered).
     #[arg(long, default_value_t = 1)]
     pub input_frames: usize,
+    /// A learned average of the window's input at the centre frame, closed until trained
+    /// (`radn train` with `input_blend = true` opens it).
+    #[arg(long)]
+    pub input_blend: bool,
     /// The temporal pass over the results at this strength (σ in local RMS of each frame's
     /// render noise; the guided recipe's floor and noise box); off when not given.
     #[arg(long, value_name = "STRENGTH")]
@@ -97,6 +101,7 @@ fn convert(a: ConvertArgs) -> Result<()> {
             _ => AuxSource::Rendered,
         },
         input_frames: a.input_frames,
+        input_blend: a.input_blend,
         stabilize: a.stabilize.map(|strength| {
             let tuned = radn_nn::recipe::Recipe::for_kind(true)
                 .stabilize
@@ -215,6 +220,11 @@ pub fn run(a: Args) -> Result<()> {
             .openness()
             .iter()
             .map(|g| format!("{g:.3}"))
+            .chain(
+                net.temporal
+                    .input_openness()
+                    .map(|g| format!("input {g:.3}")),
+            )
             .collect();
         println!(
             "# {}\n# OIDN's U-Net converted into a spatio-temporal network (radn denoise \
