@@ -52,10 +52,9 @@ fn model_full(
     input_frames: usize,
     stabilize: Option<StabilizeSettings>,
 ) {
-    let device = Device::flex();
-    device.seed(7);
-    let net = TemporalUnet::convert(
-        store::load(Path::new(UNET), &device).unwrap(),
+    save_converted(
+        path,
+        gate,
         TemporalConfig {
             frames: 5,
             levels,
@@ -66,6 +65,17 @@ fn model_full(
             stabilize,
             input_blend: false,
         },
+    );
+}
+
+/// Saves OIDN's standard U-Net converted as `config` says (blocks from a fixed seed) with
+/// every gate at `gate` to `path`.
+fn save_converted(path: &Path, gate: f32, config: TemporalConfig) {
+    let device = Device::flex();
+    device.seed(7);
+    let net = TemporalUnet::convert(
+        store::load(Path::new(UNET), &device).unwrap(),
+        config,
         &device,
     )
     .unwrap()
@@ -165,6 +175,23 @@ fn banded_denoising_equals_whole_frame_denoising() {
         model_averaging(&net, 0.5, vec![0, 1, 2], WarpSpace::Images, input_frames);
         bands_equal_whole(d.path(), &input, &net, input_frames);
     }
+    // and with a learned input average, open (its predictor reads 3 pixels further)
+    let net = d.path().join("blend.st");
+    save_converted(
+        &net,
+        0.5,
+        TemporalConfig {
+            frames: 5,
+            levels: vec![0, 1, 2],
+            color_confidence: Some(0.6),
+            warp: WarpSpace::Images,
+            aux: Default::default(),
+            input_frames: 1,
+            stabilize: None,
+            input_blend: true,
+        },
+    );
+    bands_equal_whole(d.path(), &input, &net, 9);
 }
 
 /// `radn denoise` with `net` on frames 3-7 of `input` in 32-row bands and on whole frames:
