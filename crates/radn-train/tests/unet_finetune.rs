@@ -286,3 +286,45 @@ fn an_input_mean_is_carried_into_the_model_and_brings_the_start_closer() {
     let e = refused(cfg, bilinear.path());
     assert!(e.contains("--resampling nearest"), "{e}");
 }
+
+/// A fine-tune with a learned input average: the model it converts carries the average, whose
+/// gate starts shut and opens with training, and tiles aligned with anything but nearest-pixel
+/// samples (what inference aligns with for it) are refused.
+#[test]
+fn a_learned_input_average_opens_with_training_and_needs_nearest_tiles() {
+    use radn_core::align::warp::Resampling;
+    let d = tempfile::tempdir().unwrap();
+    for (name, per_window, seed) in [("train", 2, 1), ("val", 1, 2)] {
+        let mut o = PrepareOptions::new(32, per_window, seed);
+        o.resampling = Resampling::Nearest;
+        prepare(&sample(), &d.path().join(name), &o, |_, _| {}).unwrap();
+    }
+    let device = Device::flex().autodiff();
+    let mut cfg = config(3, "temporal");
+    cfg.input_blend = true;
+    let mut run =
+        Finetune::new(cfg.clone(), d.path(), &d.path().join("run"), false, &device).unwrap();
+    assert!(run.net().config().input_blend);
+    assert_eq!(run.net().temporal.input_openness(), Some(0.0));
+    for _ in 0..3 {
+        run.step().unwrap();
+    }
+    let open = run.net().temporal.input_openness().unwrap();
+    assert!(open > 1e-4, "the input gate stayed shut ({open})");
+    let bilinear = tempfile::tempdir().unwrap();
+    tiles(bilinear.path());
+    let e = Finetune::new(
+        cfg,
+        bilinear.path(),
+        &bilinear.path().join("bad"),
+        false,
+        &device,
+    )
+    .err()
+    .expect("refused")
+    .to_string();
+    assert!(
+        e.contains("input_blend") && e.contains("--resampling nearest"),
+        "{e}"
+    );
+}
