@@ -105,7 +105,11 @@ impl InputBlend {
         let change = Transfer::Pu.forward_tensor(blended) - Transfer::Pu.forward_tensor(own);
         let centre = x.clone().narrow(1, t / 2, 1);
         let colour = centre.clone().narrow(2, 0, 3) + change.reshape([b, 1, 3, h, w]);
-        let centre = Tensor::cat(vec![colour, centre.narrow(2, 3, c - 3)], 2);
+        let centre = if c > 3 {
+            Tensor::cat(vec![colour, centre.narrow(2, 3, c - 3)], 2)
+        } else {
+            colour
+        };
         Tensor::cat(
             vec![
                 x.clone().narrow(1, 0, t / 2),
@@ -195,5 +199,36 @@ impl HostInputBlend {
             }
         }
         out
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// On a network that reads the beauty alone (no auxiliaries), the blend moves the centre's
+    /// colour towards its neighbours' where open and returns the window as given where shut.
+    #[test]
+    fn a_beauty_only_window_blends_its_colour() {
+        let device = Device::flex();
+        let (t, h, w) = (3, 8, 8);
+        let values: Vec<f32> = (0..t * 3 * h * w)
+            .map(|i| 0.2 + 0.6 * ((i / (3 * h * w)) as f32) / t as f32)
+            .collect();
+        let x: Tensor<4> = Tensor::from_data(TensorData::new(values, [t, 3, h, w]), &device);
+        let shut = InputBlend::new(3, &device);
+        let same = shut
+            .forward(x.clone(), t)
+            .into_data()
+            .try_to_vec::<f32>()
+            .unwrap();
+        assert_eq!(same, x.clone().into_data().try_to_vec::<f32>().unwrap());
+        let open = shut.with_gate(1.0).forward(x.clone(), t);
+        let centre = |y: Tensor<4>| -> f32 { y.narrow(0, 1, 1).mean().into_scalar::<f32>() };
+        let (before, after) = (centre(x.clone()), centre(open.clone()));
+        // the first frame is darker, the last brighter: the centre moves, the sides stay
+        assert!((after - before).abs() > 1e-3, "{before} -> {after}");
+        let side = |y: Tensor<4>| y.narrow(0, 0, 1).into_data().try_to_vec::<f32>().unwrap();
+        assert_eq!(side(open), side(x));
     }
 }
