@@ -323,6 +323,9 @@ impl TemporalDenoiser {
         if self.input_frames > 1 {
             return Ok(Some(window_mean(win, self.input_frames)));
         }
+        if !self.input_blend {
+            return Ok(None);
+        }
         let images: Vec<UnetImages> = win
             .frames
             .iter()
